@@ -1,0 +1,120 @@
+"""`lerobot-kvm demo`: record -> `lerobot-train` -> `lerobot-eval` on egg_vs_stone, then print the result.
+
+Each stage is the real tool a user would run; the exact commands are printed so they can be
+copied and varied.
+"""
+
+import argparse
+import json
+import shlex
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from ..datasets.recorder import RecordingSpec, record_dataset
+
+DEFAULT_SPEC = Path(__file__).resolve().parents[2] / "datasets" / "specs" / "egg_vs_stone_demo.json"
+
+
+def _bin(name: str) -> str:
+    """The console script next to this interpreter (the venv's), else from PATH."""
+    local = Path(sys.executable).parent / name
+    return str(local) if local.exists() else name
+
+
+def _run(cmd: list[str]) -> None:
+    print("\n$ " + shlex.join(cmd), flush=True)
+    subprocess.run(cmd, check=True)
+
+
+def train_command(
+    dataset_root: Path, repo_id: str, output_dir: Path, steps: int, batch_size: int, seed: int
+) -> list[str]:
+    return [
+        _bin("lerobot-train"),
+        "--policy.type=coda_kvm",
+        f"--dataset.repo_id={repo_id}",
+        f"--dataset.root={dataset_root}",
+        "--policy.push_to_hub=false",
+        "--policy.device=cpu",
+        f"--output_dir={output_dir}",
+        f"--steps={steps}",
+        f"--batch_size={batch_size}",
+        f"--save_freq={steps}",
+        "--log_freq=100",
+        "--num_workers=1",
+        f"--seed={seed}",
+        "--wandb.enable=false",
+    ]
+
+
+def eval_command(policy_path: Path, output_dir: Path, task: str, variant: str, episodes: int, seed: int) -> list[str]:
+    return [
+        _bin("lerobot-eval"),
+        f"--policy.path={policy_path}",
+        "--env.type=kvm_obsolescence",
+        f"--env.task={task}",
+        f"--env.variant={variant}",
+        f"--eval.n_episodes={episodes}",
+        f"--eval.batch_size={min(episodes, 10)}",
+        "--eval.use_async_envs=false",
+        "--policy.device=cpu",
+        f"--output_dir={output_dir}",
+        f"--seed={seed}",
+    ]
+
+
+def run(args: argparse.Namespace) -> int:
+    start = time.time()
+    out = Path(args.output_dir)
+    spec = RecordingSpec.from_json(args.spec)
+    if args.episodes:
+        for item in spec.items:
+            item.episodes = args.episodes
+    dataset_root = Path(args.dataset_root or f"datasets/{spec.name}")
+    repo_id = f"local/{spec.name}"
+    if args.fresh:
+        shutil.rmtree(out, ignore_errors=True)
+    if not dataset_root.exists():
+        print(f"[1/3] recording {dataset_root}")
+        record_dataset(spec, dataset_root, repo_id=repo_id)
+    else:
+        print(f"[1/3] reusing recorded dataset {dataset_root}")
+
+    train_dir = out / "train"
+    policy_path = train_dir / "checkpoints" / "last" / "pretrained_model"
+    if not policy_path.exists():
+        print("[2/3] training coda_kvm with lerobot-train")
+        shutil.rmtree(train_dir, ignore_errors=True)
+        _run(train_command(dataset_root, repo_id, train_dir, args.steps, args.batch_size, args.seed))
+    else:
+        print(f"[2/3] reusing trained policy {policy_path}")
+
+    print("[3/3] evaluating with lerobot-eval")
+    eval_dir = out / f"eval_{args.variant}"
+    shutil.rmtree(eval_dir, ignore_errors=True)
+    _run(eval_command(policy_path, eval_dir, "egg_vs_stone", args.variant, args.eval_episodes, args.seed))
+    info = json.loads((eval_dir / "eval_info.json").read_text())
+    overall = info["overall"]
+    print(
+        f"\negg_vs_stone ({args.variant}): success {overall['pc_success']:.1f}% over "
+        f"{overall['n_episodes']} episodes  [policy: {policy_path}]  ({time.time() - start:.0f} s total)"
+    )
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("demo", help="record, train and evaluate coda_kvm on egg_vs_stone")
+    p.add_argument("--spec", default=str(DEFAULT_SPEC), help="recording spec for the demo dataset")
+    p.add_argument("--dataset-root", help="where the dataset lives (default datasets/<spec name>)")
+    p.add_argument("--output-dir", default="outputs/demo")
+    p.add_argument("--episodes", type=int, help="override episodes per spec item")
+    p.add_argument("--steps", type=int, default=3000)
+    p.add_argument("--batch-size", type=int, default=32)
+    p.add_argument("--eval-episodes", type=int, default=20)
+    p.add_argument("--variant", default="prior")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--fresh", action="store_true", help="retrain and re-evaluate even if outputs exist")
+    p.set_defaults(func=run)

@@ -1,0 +1,25 @@
+"""`lerobot-kvm`: the project's own commands (LeRobot's CLIs do training and evaluation)."""
+
+import argparse
+import sys
+
+from . import demo, record
+
+COMMANDS = {"record": record, "demo": demo}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="lerobot-kvm", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    for module in COMMANDS.values():
+        module.add_parser(sub)
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (ValueError, FileExistsError, FileNotFoundError) as err:
+        print(f"lerobot-kvm {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

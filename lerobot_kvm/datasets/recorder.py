@@ -1,0 +1,195 @@
+"""Record scripted-expert episodes into a LeRobotDataset v3 (PNG frames in parquet).
+
+Recording goes to a temporary sibling directory that is moved into place only after
+`finalize()`, so an interrupted or failed run never leaves a half-written dataset at the
+target root.
+"""
+
+import json
+import os
+import shutil
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from tqdm import tqdm
+
+import datasets as hf_datasets
+
+from ..envs.configuration_kvm_obsolescence import OBS_CONTEXT
+from ..envs.env import KvmObsolescenceEnv
+from ..envs.scenario import make_scenario
+from ..envs.sensing import ACTION_NAMES, CONTEXT_NAMES, STATE_NAMES
+
+LABELS_FILE = "meta/kvm_labels.json"
+OUTCOMES = ("success", "failure", "catastrophe")
+LABEL_KEYS = ("label.skill", "label.scenario", "label.variant", "label.outcome")
+
+
+@dataclass
+class RecordItem:
+    """Episodes of one expert skill on one scenario variant.
+
+    `instruction`: "variant" records the env's own instruction for the variant (what a
+    benchmark attempt will say); "skill" records the instruction that asks for the skill
+    explicitly (e.g. "gently pick up the stone").
+    """
+
+    scenario: str
+    variant: str
+    skill: str
+    episodes: int
+    instruction: str = "variant"
+
+    def __post_init__(self) -> None:
+        info = make_scenario(self.scenario).info
+        if self.variant not in info.variants:
+            raise ValueError(f"{self.scenario}: unknown variant {self.variant!r} (have {list(info.variants)})")
+        if self.skill not in (info.prior_skill, info.safe_skill):
+            raise ValueError(
+                f"{self.scenario}: unknown skill {self.skill!r} (have {info.prior_skill!r}, {info.safe_skill!r})"
+            )
+        if self.instruction not in ("variant", "skill"):
+            raise ValueError(f"instruction must be 'variant' or 'skill', got {self.instruction!r}")
+        if self.episodes < 1:
+            raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+
+    def task_string(self) -> str:
+        info = make_scenario(self.scenario).info
+        return info.instructions[self.variant] if self.instruction == "variant" else info.skill_instructions[self.skill]
+
+
+@dataclass
+class RecordingSpec:
+    name: str
+    items: list[RecordItem]
+    seed: int = 0
+    fps: int = 20
+    image_size: int = 96
+    keep_failures: bool = False  # expert episodes that fail are dropped unless kept as negatives
+    extra: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.items:
+            raise ValueError("a recording spec needs at least one item")
+
+    @classmethod
+    def from_json(cls, path: str | Path) -> "RecordingSpec":
+        raw = json.loads(Path(path).read_text())
+        raw["items"] = [RecordItem(**it) for it in raw.get("items", [])]
+        return cls(**raw)
+
+    def vocab(self) -> dict[str, list[str]]:
+        return {
+            "skill": sorted({it.skill for it in self.items}),
+            "scenario": sorted({it.scenario for it in self.items}),
+            "variant": sorted({it.variant for it in self.items}),
+            "outcome": list(OUTCOMES),
+        }
+
+
+def dataset_features(image_size: int) -> dict:
+    scalar = {"dtype": "int64", "shape": (1,), "names": None}
+    return {
+        "observation.images.front": {
+            "dtype": "image",
+            "shape": (image_size, image_size, 3),
+            "names": ["height", "width", "channels"],
+        },
+        "observation.state": {"dtype": "float32", "shape": (len(STATE_NAMES),), "names": list(STATE_NAMES)},
+        OBS_CONTEXT: {"dtype": "float32", "shape": (len(CONTEXT_NAMES),), "names": list(CONTEXT_NAMES)},
+        "action": {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": list(ACTION_NAMES)},
+        **{key: dict(scalar) for key in LABEL_KEYS},
+    }
+
+
+def _run_episode(env: KvmObsolescenceEnv, skill: str, seed: int) -> tuple[list[dict], str]:
+    obs, _ = env.reset(seed=seed)
+    expert = env.scenario.expert(skill)
+    frames = []
+    info: dict = {}
+    for _ in range(env._max_episode_steps):
+        action = expert.act(env)
+        frames.append(
+            {
+                "observation.images.front": obs["pixels"]["front"],
+                "observation.state": obs["agent_pos"],
+                OBS_CONTEXT: obs["context"],
+                "action": action.astype(np.float32),
+            }
+        )
+        obs, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            break
+    outcome = "catastrophe" if info.get("catastrophe") else "success" if info.get("is_success") else "failure"
+    return frames, outcome
+
+
+def record_dataset(
+    spec: RecordingSpec, root: str | Path, repo_id: str | None = None, overwrite: bool = False, progress: bool = True
+) -> dict:
+    """Record `spec` into `root`; returns a summary (episodes and outcomes per item)."""
+    root = Path(root)
+    if root.exists() and not overwrite:
+        raise FileExistsError(f"dataset root {root} already exists (pass overwrite to replace it)")
+    repo_id = repo_id or f"local/{spec.name}"
+    vocab = spec.vocab()
+    tmp = root.parent / f".{root.name}.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    root.parent.mkdir(parents=True, exist_ok=True)
+    summary: list[dict] = []
+    hf_datasets.disable_progress_bars()  # one bar per recording, not one per saved episode
+    ds: LeRobotDataset | None = None
+    try:
+        ds = LeRobotDataset.create(
+            repo_id=repo_id, fps=spec.fps, features=dataset_features(spec.image_size), root=tmp, use_videos=False
+        )
+        episode_seed = spec.seed
+        total = sum(it.episodes for it in spec.items)
+        bar = tqdm(total=total, desc=f"recording {spec.name}", disable=not progress, unit="ep")
+        for item in spec.items:
+            env = KvmObsolescenceEnv(task=item.scenario, variant=item.variant, image_size=spec.image_size, fps=spec.fps)
+            counts = dict.fromkeys(OUTCOMES, 0)
+            task = item.task_string()
+            labels = {
+                "label.skill": vocab["skill"].index(item.skill),
+                "label.scenario": vocab["scenario"].index(item.scenario),
+                "label.variant": vocab["variant"].index(item.variant),
+            }
+            for _ in range(item.episodes):
+                frames, outcome = _run_episode(env, item.skill, episode_seed)
+                episode_seed += 1
+                counts[outcome] += 1
+                bar.update()
+                if outcome != "success" and not spec.keep_failures:
+                    continue
+                label_values = {**labels, "label.outcome": OUTCOMES.index(outcome)}
+                for frame in frames:
+                    ds.add_frame(
+                        {**frame, **{k: np.array([v], dtype=np.int64) for k, v in label_values.items()}, "task": task}
+                    )
+                ds.save_episode()
+            env.close()
+            summary.append({**asdict(item), "task": task, "outcomes": counts})
+        bar.close()
+        if ds.num_episodes == 0:
+            raise RuntimeError("no episode was kept: every expert episode failed")
+        ds.finalize()
+        (tmp / LABELS_FILE).write_text(json.dumps({"vocab": vocab, "spec": asdict(spec), "summary": summary}, indent=2))
+        if root.exists():
+            shutil.rmtree(root)
+        os.replace(tmp, root)
+    except BaseException:
+        if ds is not None:  # close the writer first, or its finaliser re-creates files under tmp
+            ds.finalize()
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return {"root": str(root), "repo_id": repo_id, "episodes": ds.num_episodes, "items": summary}
+
+
+def load_label_vocab(root: str | Path) -> dict[str, list[str]]:
+    path = Path(root) / LABELS_FILE
+    if not path.exists():
+        raise FileNotFoundError(f"{path} missing: {root} was not recorded by lerobot-kvm record")
+    return json.loads(path.read_text())["vocab"]

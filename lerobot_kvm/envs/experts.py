@@ -1,0 +1,60 @@
+"""Scripted experts shared by scenarios: small state machines on touch, F/T and tracking."""
+
+import numpy as np
+
+from .scenario import Expert
+
+HAND_TO_FINGER_CENTRE = 0.035  # finger centre below the hand origin
+FINGER_HALF_HEIGHT = 0.035
+MOVE_STEP = 0.015  # m per control step while approaching
+TOUCH_ON = 0.3  # N on a fingertip that counts as contact
+
+
+class GraspLiftExpert(Expert):
+    """Approach from above, descend, squeeze with a fixed grip command, lift, hold.
+
+    The grip level is the skill: a firm squeeze and a gentle one are two experts of this class.
+    """
+
+    def __init__(self, body: str, grip: float, lift: float = 0.12, grasp_height: float | None = None) -> None:
+        self.body = body
+        self.grip = grip
+        self.lift = lift
+        self.grasp_height = grasp_height
+        self.phase = "approach"
+        self.settle = 0
+        self.timer = 0
+        self.anchor = np.zeros(3)
+
+    def act(self, env) -> np.ndarray:
+        obj = env.data.body(self.body).xpos
+        pos = env.sensors.arm_position(env.data)
+        touch = env.sensors.touch(env.data)
+        centre = obj[2] if self.grasp_height is None else self.grasp_height
+        grasp_z = max(centre + HAND_TO_FINGER_CENTRE, FINGER_HALF_HEIGHT * 2 + 0.006)
+        hover_z = grasp_z + 0.06
+        target = pos[:3].copy()
+        grip = -1.0
+        self.timer += 1
+        if self.phase == "approach":
+            goal = np.array([obj[0], obj[1], hover_z])
+            target = pos[:3] + np.clip(goal - pos[:3], -MOVE_STEP, MOVE_STEP)
+            if np.linalg.norm(goal - pos[:3]) < 0.004:
+                self.phase = "descend"
+        elif self.phase == "descend":
+            goal = np.array([obj[0], obj[1], grasp_z])
+            target = pos[:3] + np.clip(goal - pos[:3], -MOVE_STEP, MOVE_STEP)
+            if abs(pos[2] - grasp_z) < 0.003:
+                self.phase, self.timer, self.anchor = "close", 0, goal
+        elif self.phase == "close":
+            target = self.anchor
+            grip = self.grip
+            both = touch.min() > TOUCH_ON
+            self.settle = self.settle + 1 if both else 0
+            if self.settle >= 4 or self.timer > 30:
+                self.phase = "lift"
+        else:  # lift and hold
+            grip = self.grip
+            self.anchor = self.anchor + [0.0, 0.0, 0.01 if self.anchor[2] < grasp_z + self.lift else 0.0]
+            target = self.anchor
+        return np.array([*target, 0.0, grip], dtype=np.float32)

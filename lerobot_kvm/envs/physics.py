@@ -1,0 +1,39 @@
+"""Physics read-outs shared by scenarios (contact forces, body lookups)."""
+
+import mujoco
+import numpy as np
+
+_WRENCH = np.zeros(6)
+
+
+def geom_ids(model: mujoco.MjModel, *names: str) -> frozenset[int]:
+    return frozenset(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, n) for n in names)
+
+
+def contact_normal_force(
+    data: mujoco.MjData, model: mujoco.MjModel, group_a: frozenset[int], group_b: frozenset[int]
+) -> float:
+    """Total normal force (N) over active contacts between any geom of `group_a` and any of `group_b`."""
+    total = 0.0
+    for i in range(data.ncon):
+        c = data.contact[i]
+        g1, g2 = c.geom1, c.geom2
+        if (g1 in group_a and g2 in group_b) or (g2 in group_a and g1 in group_b):
+            mujoco.mj_contactForce(model, data, i, _WRENCH)
+            total += abs(_WRENCH[0])
+    return total
+
+
+def max_pair_force(
+    data: mujoco.MjData, model: mujoco.MjModel, target: frozenset[int], others: tuple[frozenset[int], ...]
+) -> float:
+    """Largest normal force that any one of `others` (e.g. each finger) exerts on `target`."""
+    return max(contact_normal_force(data, model, target, g) for g in others)
+
+
+def set_free_body_pose(model: mujoco.MjModel, data: mujoco.MjData, body: str, pos, yaw: float = 0.0) -> None:
+    """Place a free-jointed body at `pos` with a rotation `yaw` about z."""
+    jnt = model.body(body).jntadr[0]
+    adr = model.jnt_qposadr[jnt]
+    data.qpos[adr : adr + 3] = pos
+    data.qpos[adr + 3 : adr + 7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]

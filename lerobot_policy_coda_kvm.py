@@ -1,0 +1,3 @@
+"""Entry point LeRobot imports by distribution name; importing it registers `coda_kvm` and `kvm_obsolescence`."""
+
+import lerobot_kvm  # noqa: F401

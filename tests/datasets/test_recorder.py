@@ -1,0 +1,77 @@
+import json
+
+import pytest
+import torch
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+from lerobot_kvm.datasets import recorder
+from lerobot_kvm.datasets.recorder import RecordingSpec, RecordItem, load_label_vocab, record_dataset
+
+
+def tiny_spec() -> RecordingSpec:
+    return RecordingSpec(
+        name="tiny",
+        items=[
+            RecordItem("egg_vs_stone", "prior", "firm_grasp", 1),
+            RecordItem("egg_vs_stone", "prior", "gentle_grasp", 1, instruction="skill"),
+        ],
+    )
+
+
+def test_round_trip_through_lerobot_dataset(tmp_path):
+    root = tmp_path / "tiny"
+    summary = record_dataset(tiny_spec(), root, progress=False)
+    assert summary["episodes"] == 2
+    ds = LeRobotDataset("local/tiny", root=root)
+    assert ds.num_episodes == 2
+    frame = ds[0]
+    assert frame["observation.images.front"].shape == (3, 96, 96)
+    assert frame["observation.state"].shape == (6,) and frame["observation.context"].shape == (24,)
+    assert frame["action"].shape == (5,)
+    vocab = load_label_vocab(root)
+    tasks = {ds[i]["task"] for i in range(len(ds))}
+    assert tasks == {"pick up the stone", "gently pick up the stone"}
+    skills = {vocab["skill"][int(ds[i]["label.skill"])] for i in range(len(ds))}
+    assert skills == {"firm_grasp", "gentle_grasp"}
+    assert all(vocab["outcome"][int(ds[i]["label.outcome"])] == "success" for i in range(len(ds)))
+    assert torch.isfinite(frame["observation.context"]).all()
+
+
+def test_recording_is_deterministic(tmp_path):
+    spec = RecordingSpec(name="d", items=[RecordItem("egg_vs_stone", "prior", "firm_grasp", 1)], seed=5)
+    a = LeRobotDataset("local/d", root=tmp_path / "a") if record_dataset(spec, tmp_path / "a", progress=False) else None
+    b = LeRobotDataset("local/d", root=tmp_path / "b") if record_dataset(spec, tmp_path / "b", progress=False) else None
+    assert len(a) == len(b)
+    for i in (0, len(a) - 1):
+        torch.testing.assert_close(a[i]["action"], b[i]["action"], rtol=0, atol=0)
+        torch.testing.assert_close(a[i]["observation.images.front"], b[i]["observation.images.front"], rtol=0, atol=0)
+
+
+def test_failed_recording_leaves_nothing_behind(tmp_path, monkeypatch):
+    calls = {"n": 0}
+    real = recorder._run_episode
+
+    def crash_on_second(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(recorder, "_run_episode", crash_on_second)
+    with pytest.raises(KeyboardInterrupt):
+        record_dataset(tiny_spec(), tmp_path / "ds", progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_existing_root_and_bad_specs_are_refused(tmp_path):
+    (tmp_path / "ds").mkdir()
+    with pytest.raises(FileExistsError):
+        record_dataset(tiny_spec(), tmp_path / "ds", progress=False)
+    with pytest.raises(ValueError, match="skill"):
+        RecordItem("egg_vs_stone", "prior", "juggle", 1)
+    with pytest.raises(ValueError, match="variant"):
+        RecordItem("egg_vs_stone", "melted", "firm_grasp", 1)
+    path = tmp_path / "spec.json"
+    path.write_text(json.dumps({"name": "x", "items": []}))
+    with pytest.raises(ValueError, match="at least one item"):
+        RecordingSpec.from_json(path)
