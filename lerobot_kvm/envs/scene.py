@@ -19,6 +19,7 @@ class SceneParts:
     """What a scenario adds to the shared scene."""
 
     worldbody: str
+    hand: str = ""  # geoms/bodies attached to the hand (a held tool), in the hand's frame
     assets: str = ""
     equality: str = ""
     contact: str = ""
@@ -34,6 +35,7 @@ _ROBOT = f"""
       <body name="hand" gravcomp="1">
         <joint name="pitch" type="hinge" axis="0 1 0" range="-1.7 1.7" damping="3" armature="0.01"/>
         <site name="wrist_ft" pos="0 0 0" size="0.005"/>
+        {{hand}}
         <geom name="palm" type="box" size="0.02 {FINGER_OPEN + 0.012} 0.012" pos="0 0 0.012"
               rgba="0.25 0.27 0.32 1" mass="0.3"/>
         <body name="finger_l" pos="0 {FINGER_OPEN} -0.035" gravcomp="1">
@@ -92,7 +94,7 @@ def build_scene_xml(parts: SceneParts, *, width: int, height: int, timestep: flo
     <light name="top" pos="0 -0.2 1.2" dir="0 0.2 -1" directional="true" castshadow="false"/>
     <geom name="table" type="plane" size="0.6 0.6 0.02" material="table" friction="0.8 0.01 0.001"/>
     <camera name="front" pos="0.22 -0.30 0.30" xyaxes="0.806 0.591 0 -0.311 0.424 0.851" fovy="42"/>
-    {_ROBOT}
+    {_ROBOT.replace("{hand}", parts.hand)}
     {parts.worldbody}
   </worldbody>
   <actuator>{_ACTUATORS}</actuator>
