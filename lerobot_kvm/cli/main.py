@@ -3,9 +3,15 @@
 import argparse
 import sys
 
-from . import demo, record
+from . import catalogue, check_suite, contact_sheet, demo, record
 
-COMMANDS = {"record": record, "demo": demo}
+COMMANDS = {
+    "record": record,
+    "demo": demo,
+    "check-suite": check_suite,
+    "contact-sheet": contact_sheet,
+    "catalogue": catalogue,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

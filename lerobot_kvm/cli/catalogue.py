@@ -1,0 +1,23 @@
+"""`lerobot-kvm catalogue`: write the scenario table (docs/scenarios.md) from the registry."""
+
+import argparse
+from pathlib import Path
+
+from ..envs.catalogue import catalogue_markdown
+from ..envs.scenario import resolve_tasks
+
+
+def run(args: argparse.Namespace) -> int:
+    ids = resolve_tasks(args.tasks)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(catalogue_markdown(ids))
+    print(f"wrote {out} ({len(ids)} scenarios)")
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("catalogue", help="write the Markdown scenario catalogue from the registry")
+    p.add_argument("--out", default="docs/scenarios.md")
+    p.add_argument("--tasks", default="all", help="scenario ids, categories (A,B,C) or 'all', comma separated")
+    p.set_defaults(func=run)

@@ -1,0 +1,78 @@
+"""`lerobot-kvm check-suite`: measure every scenario against the suite's acceptance thresholds.
+
+It is a measurement, not a gate: the exit code is 0 whatever the result, and the summary line
+says how many scenarios pass.
+"""
+
+import argparse
+import json
+from pathlib import Path
+
+from ..envs.scenario import resolve_tasks
+from ..envs.suite_check import check_suite
+
+# (header, row key, format); rates are fractions of episodes
+COLUMNS = (
+    ("scenario", "id", "{}"),
+    ("cat", "category", "{}"),
+    ("pp succ", "prior_on_prior_success", "{:.2f}"),
+    ("pp cat", "prior_on_prior_catastrophe", "{:.2f}"),
+    ("ps cat", "prior_on_shifted_catastrophe", "{:.2f}"),
+    ("ss succ", "safe_on_shifted_success", "{:.2f}"),
+    ("ss cat", "safe_on_shifted_catastrophe", "{:.2f}"),
+    ("ctrl succ", "control_prior_skill_success", "{:.2f}"),
+    ("ctrl cat", "control_prior_skill_catastrophe", "{:.2f}"),
+    ("img diff", "reset_image_diff", "{:.2f}"),
+    ("steps/s", "env_steps_per_s", "{:.0f}"),
+)
+LEGEND = (
+    "pp = prior skill on prior variant, ps = prior skill on shifted, ss = safe skill on shifted,\n"
+    "ctrl = prior skill on control; succ/cat = success/catastrophe rate over the episodes"
+)
+
+
+def format_table(report: dict) -> str:
+    """Aligned text table; the last column names the failed checks."""
+    header = [h for h, _, _ in COLUMNS] + ["result"]
+    lines = []
+    for row in report["scenarios"]:
+        cells = ["-" if row[key] is None else fmt.format(row[key]) for _, key, fmt in COLUMNS]
+        failed = [name for name, ok in row["passes"].items() if ok is False]
+        cells.append("pass" if row["passed"] else "FAIL: " + ", ".join(failed))
+        lines.append(cells)
+    widths = [max(len(c) for c in col) for col in zip(header, *lines, strict=True)]
+    numeric = [fmt != "{}" for _, _, fmt in COLUMNS] + [False]
+
+    def fmt_line(cells: list[str]) -> str:
+        padded = (c.rjust(w) if num else c.ljust(w) for c, w, num in zip(cells, widths, numeric, strict=True))
+        return "  ".join(padded).rstrip()
+
+    return "\n".join([fmt_line(header), fmt_line(["-" * w for w in widths]), *map(fmt_line, lines)])
+
+
+def run(args: argparse.Namespace) -> int:
+    report = check_suite(resolve_tasks(args.tasks), episodes=args.episodes, seed=args.seed)
+    print(format_table(report))
+    print(LEGEND)
+    for row in report["scenarios"]:
+        if row["particle_scene"]:
+            print(f"{row['id']}: particle scene ({row['particle_basis']}), speed bar lowered")
+    if args.json:
+        path = Path(args.json)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(report, indent=2) + "\n")
+        print(f"wrote {path}")
+    print(
+        f"{report['n_pass']}/{report['n_scenarios']} scenarios pass "
+        f"({report['episodes']} episodes per run, seed {report['seed']}, {report['wall_time_s']:.0f} s)"
+    )
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("check-suite", help="run the scripted experts on every scenario and check the thresholds")
+    p.add_argument("--episodes", type=int, default=20, help="episodes per scenario x variant x skill")
+    p.add_argument("--seed", type=int, default=0, help="episode seeds are seed, seed+1, ...")
+    p.add_argument("--tasks", default="all", help="scenario ids, categories (A,B,C) or 'all', comma separated")
+    p.add_argument("--json", help="also write the full report to this JSON file")
+    p.set_defaults(func=run)

@@ -1,0 +1,25 @@
+"""`lerobot-kvm contact-sheet`: render every scenario's prior/shifted story into one PNG to check by eye."""
+
+import argparse
+from pathlib import Path
+
+from ..envs.contact_sheet import contact_sheet
+from ..envs.scenario import resolve_tasks
+
+
+def run(args: argparse.Namespace) -> int:
+    ids = resolve_tasks(args.tasks)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    contact_sheet(ids, seed=args.seed, size=args.size).save(out)
+    print(f"wrote {out} ({len(ids)} scenarios)")
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("contact-sheet", help="one PNG: each scenario at reset and after the prior skill, both variants")
+    p.add_argument("--out", default="docs/contact_sheet.png")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--tasks", default="all", help="scenario ids, categories (A,B,C) or 'all', comma separated")
+    p.add_argument("--size", type=int, default=160, help="panel size in pixels")
+    p.set_defaults(func=run)
