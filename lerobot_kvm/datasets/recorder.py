@@ -139,6 +139,7 @@ def record_dataset(
     shutil.rmtree(tmp, ignore_errors=True)
     root.parent.mkdir(parents=True, exist_ok=True)
     summary: list[dict] = []
+    episodes: list[dict] = []  # per kept episode: its labels, so trainers can map episode_index -> skill
     hf_datasets.disable_progress_bars()  # one bar per recording, not one per saved episode
     ds: LeRobotDataset | None = None
     try:
@@ -165,6 +166,17 @@ def record_dataset(
                 if outcome != "success" and not spec.keep_failures:
                     continue
                 label_values = {**labels, "label.outcome": OUTCOMES.index(outcome)}
+                episodes.append(
+                    {
+                        "episode_index": ds.num_episodes,
+                        "scenario": item.scenario,
+                        "variant": item.variant,
+                        "skill": item.skill,
+                        "outcome": outcome,
+                        "task": task,
+                        "seed": episode_seed - 1,
+                    }
+                )
                 for frame in frames:
                     ds.add_frame(
                         {**frame, **{k: np.array([v], dtype=np.int64) for k, v in label_values.items()}, "task": task}
@@ -176,7 +188,9 @@ def record_dataset(
         if ds.num_episodes == 0:
             raise RuntimeError("no episode was kept: every expert episode failed")
         ds.finalize()
-        (tmp / LABELS_FILE).write_text(json.dumps({"vocab": vocab, "spec": asdict(spec), "summary": summary}, indent=2))
+        (tmp / LABELS_FILE).write_text(
+            json.dumps({"vocab": vocab, "spec": asdict(spec), "summary": summary, "episodes": episodes}, indent=2)
+        )
         if root.exists():
             shutil.rmtree(root)
         os.replace(tmp, root)
@@ -188,8 +202,13 @@ def record_dataset(
     return {"root": str(root), "repo_id": repo_id, "episodes": ds.num_episodes, "items": summary}
 
 
-def load_label_vocab(root: str | Path) -> dict[str, list[str]]:
+def load_labels(root: str | Path) -> dict:
+    """The training-only labels of a recorded dataset: `vocab`, `spec`, `summary`, `episodes`."""
     path = Path(root) / LABELS_FILE
     if not path.exists():
         raise FileNotFoundError(f"{path} missing: {root} was not recorded by lerobot-kvm record")
-    return json.loads(path.read_text())["vocab"]
+    return json.loads(path.read_text())
+
+
+def load_label_vocab(root: str | Path) -> dict[str, list[str]]:
+    return load_labels(root)["vocab"]

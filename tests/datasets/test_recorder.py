@@ -5,7 +5,7 @@ import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_kvm.datasets import recorder
-from lerobot_kvm.datasets.recorder import RecordingSpec, RecordItem, load_label_vocab, record_dataset
+from lerobot_kvm.datasets.recorder import RecordingSpec, RecordItem, load_label_vocab, load_labels, record_dataset
 
 
 def tiny_spec() -> RecordingSpec:
@@ -35,6 +35,11 @@ def test_round_trip_through_lerobot_dataset(tmp_path):
     assert skills == {"firm_grasp", "gentle_grasp"}
     assert all(vocab["outcome"][int(ds[i]["label.outcome"])] == "success" for i in range(len(ds)))
     assert torch.isfinite(frame["observation.context"]).all()
+    episodes = load_labels(root)["episodes"]
+    assert [e["skill"] for e in episodes] == ["firm_grasp", "gentle_grasp"]
+    for e in episodes:
+        first = ds[int(ds.meta.episodes["dataset_from_index"][e["episode_index"]])]
+        assert vocab["skill"][int(first["label.skill"])] == e["skill"] and first["task"] == e["task"]
 
 
 def test_recording_is_deterministic(tmp_path):
