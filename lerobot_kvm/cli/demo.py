@@ -111,7 +111,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dataset-root", help="where the dataset lives (default datasets/<spec name>)")
     p.add_argument("--output-dir", default="outputs/demo")
     p.add_argument("--episodes", type=int, help="override episodes per spec item")
-    p.add_argument("--steps", type=int, default=3000)
+    p.add_argument("--steps", type=int, default=800)
     p.add_argument("--batch-size", type=int, default=32)
     p.add_argument("--eval-episodes", type=int, default=20)
     p.add_argument("--variant", default="prior")
