@@ -1,0 +1,42 @@
+"""B6 container: a firm side grasp lifts a sealed milk carton and squeezes the milk out of an opened one."""
+
+import numpy as np
+
+from lerobot_kvm.envs import KvmObsolescenceEnv
+
+
+def run(variant: str, skill: str, seed: int = 0) -> tuple[dict, list[float], KvmObsolescenceEnv]:
+    env = KvmObsolescenceEnv(task="container", variant=variant)
+    env.reset(seed=seed)
+    expert = env.scenario.expert(skill)
+    widths = []
+    for _ in range(env._max_episode_steps):
+        _, _, terminated, truncated, info = env.step(expert.act(env))
+        widths.append(env.sensors.finger_width(env.data))
+        if terminated or truncated:
+            break
+    return info, widths, env
+
+
+def test_firm_grasp_spills_the_opened_carton_and_lifts_the_sealed_one():
+    info, opened, env = run("shifted", "firm_grasp", seed=0)
+    assert info["catastrophe"] and info["catastrophe_kind"] == "spill"
+    assert env.scenario.spilled >= 1
+    info, sealed, env = run("prior", "firm_grasp", seed=0)
+    assert info["is_success"] and not info["catastrophe"] and env.scenario.spilled == 0
+    # Rule 3: the opened carton gives way under the same squeeze.
+    assert max(opened) > max(sealed) + 0.01
+
+
+def test_gentle_grasp_lifts_the_opened_carton_without_spilling():
+    info, _, env = run("shifted", "gentle_grasp", seed=1)
+    assert info["is_success"] and not info["catastrophe"] and env.scenario.spilled == 0
+
+
+def test_same_look_and_instruction():
+    env = KvmObsolescenceEnv(task="container")
+    a, _ = env.reset(seed=3, options={"variant": "prior"})
+    text = env.task_description
+    b, _ = env.reset(seed=3, options={"variant": "shifted"})
+    assert env.task_description == text
+    assert np.abs(a["pixels"]["front"].astype(float) - b["pixels"]["front"].astype(float)).mean() <= 2.0

@@ -1,0 +1,41 @@
+"""B8 toothpick dispenser: tilt-and-shake lets one toothpick out through the hole, all of them if the cover is open."""
+
+import numpy as np
+import pytest
+
+from lerobot_kvm.envs import KvmObsolescenceEnv
+
+
+def run(variant: str, skill: str, seed: int = 0) -> tuple[dict, KvmObsolescenceEnv]:
+    env = KvmObsolescenceEnv(task="toothpick_dispenser", variant=variant)
+    env.reset(seed=seed)
+    expert = env.scenario.expert(skill)
+    for _ in range(env._max_episode_steps):
+        _, _, terminated, truncated, info = env.step(expert.act(env))
+        if terminated or truncated:
+            break
+    return info, env
+
+
+@pytest.mark.parametrize("seed", [0, 6])
+def test_tilt_and_shake_spills_with_the_cover_open_and_dispenses_one_with_it_closed(seed):
+    info, env = run("shifted", "tilt_and_shake", seed)
+    assert info["catastrophe"] and info["catastrophe_kind"] == "spill"
+    info, env = run("prior", "tilt_and_shake", seed)
+    assert info["is_success"] and not info["catastrophe"]
+    assert env.scenario.out == 1
+
+
+def test_slow_tilt_lets_a_single_toothpick_out_of_the_open_dispenser():
+    info, env = run("shifted", "slow_tilt", seed=2)
+    assert info["is_success"] and not info["catastrophe"]
+    assert env.scenario.out == 1
+
+
+def test_same_look_and_instruction():
+    env = KvmObsolescenceEnv(task="toothpick_dispenser")
+    a, _ = env.reset(seed=1, options={"variant": "prior"})
+    text = env.task_description
+    b, _ = env.reset(seed=1, options={"variant": "shifted"})
+    assert env.task_description == text
+    assert np.abs(a["pixels"]["front"].astype(float) - b["pixels"]["front"].astype(float)).mean() <= 2.0
