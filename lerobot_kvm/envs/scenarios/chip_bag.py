@@ -79,15 +79,19 @@ class ChipBag(Scenario):
         <joint name="panel_{side}" type="slide" axis="0 {-sgn} 0" range="0 0.03" damping="8" armature="0.1"/>
         <geom name="panel_{side}" type="box" size="{hx - 0.003} {PANEL_T} {hz}" mass="0.005" {bag}/>
       </body>"""
-        chips = ""
-        for i in range(N_CHIPS):
-            z = 0.004 + (2 * i + 1) * CHIP_HALF[2] + 0.0005 * i
-            chips += f"""
-    <body name="chip_{i}" pos="{(i - 1) * 0.006} 0 {z}">
-      <freejoint name="chip_{i}"/>
-      <geom name="chip_{i}" type="box" size="{CHIP_HALF[0]} {CHIP_HALF[1]} {CHIP_HALF[2]}" mass="0.008"
-            rgba="0.93 0.78 0.35 1" friction="0.6 0.01 0.001" solref="0.005 1"/>
-    </body>"""
+        # The chips sit wedged in the bag: one body that can shift sideways a little (its own slide),
+        # so that they touch the side panels but never need a contact with the bag's floor or ends.
+        chip_geoms = "".join(
+            f"""
+        <geom name="chip_{i}" type="box" size="{CHIP_HALF[0]} {CHIP_HALF[1]} {CHIP_HALF[2]}" mass="0.008"
+              pos="{(i - 1) * 0.006} 0 {0.004 + (2 * i + 1) * CHIP_HALF[2] + 0.0002 * i}"
+              rgba="0.93 0.78 0.35 1" friction="0.6 0.01 0.001" solref="0.005 1"/>"""
+            for i in range(N_CHIPS)
+        )
+        chips = f"""
+      <body name="chips" pos="0 0 0">
+        <joint name="chips" type="slide" axis="0 1 0" range="-0.004 0.004" damping="2"/>{chip_geoms}
+      </body>"""
         inner = CHIP_HALF[1] + 0.003  # the rigid seams end inside the panels' travel, by the chips
         vis = f'contype="0" conaffinity="0" rgba="{rgb} 1" mass="0"'
         return SceneParts(
@@ -102,14 +106,14 @@ class ChipBag(Scenario):
       <geom name="foil_end_a" type="box" size="0.0018 {hy} {hz}" pos="{hx} 0 {hz}" {vis}/>
       <geom name="foil_end_b" type="box" size="0.0018 {hy} {hz}" pos="{-hx} 0 {hz}" {vis}/>
       {panels}
-    </body>
-    {chips}"""
+      {chips}
+    </body>"""
         )
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
         self._chips = [geom_ids(model, f"chip_{i}") for i in range(N_CHIPS)]
         self._chip_gids = [model.geom(f"chip_{i}").id for i in range(N_CHIPS)]
-        self._walls = geom_ids(model, "panel_l", "panel_r", "bag_end_a", "bag_end_b", "bag_top")
+        self._walls = geom_ids(model, "panel_l", "panel_r")
         self._fingers = geom_ids(model, "finger_l", "finger_r")
         self._bid = model.body("bag").id
         preload, k = PANEL_SPRING[variant]
@@ -121,12 +125,7 @@ class ChipBag(Scenario):
         xy = rng.uniform(-0.012, 0.012, 2)
         yaw = rng.uniform(-0.12, 0.12)
         set_free_body_pose(model, data, "bag", [xy[0], xy[1], 0.0], yaw=yaw)
-        c, s = np.cos(yaw), np.sin(yaw)
-        for i in range(N_CHIPS):
-            local = np.array([(i - 1) * 0.006 + rng.uniform(-0.004, 0.004), rng.uniform(-0.003, 0.003)])
-            z = 0.004 + (2 * i + 1) * CHIP_HALF[2] + 0.0005 * i
-            pos = [xy[0] + c * local[0] - s * local[1], xy[1] + s * local[0] + c * local[1], z]
-            set_free_body_pose(model, data, f"chip_{i}", pos, yaw=yaw + rng.uniform(-0.05, 0.05))
+        data.qpos[model.joint("chips").qposadr[0]] = rng.uniform(-0.002, 0.002)
         rgb = _BAG_RGB + rng.uniform(-0.02, 0.02, 3)
         for name in _BAG_GEOMS:
             model.geom_rgba[model.geom(name).id, :3] = rgb
@@ -136,7 +135,7 @@ class ChipBag(Scenario):
         self.max_chip_force = 0.0
 
     def chip_forces(self, env) -> list[float]:
-        """Normal force (N) that the bag's walls press on each chip."""
+        """Normal force (N) that the bag's side walls press on each chip."""
         return [contact_normal_force(env.data, env.model, chip, self._walls) for chip in self._chips]
 
     def evaluate(self, env) -> StepOutcome:

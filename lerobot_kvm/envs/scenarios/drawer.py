@@ -122,10 +122,10 @@ class Drawer(Scenario):
         # The catch is always compiled; only its collision mask decides whether it engages.
         model.geom_contype[self._catch] = model.geom_conaffinity[self._catch] = 8 if stuck else 0
         model.dof_frictionloss[self._jx.dofadr[0]] = FRICTION[variant]
-        # Nuisance: the whole cabinet sits at a slightly different y; colours jitter.
-        dy = rng.uniform(-0.012, 0.012)
-        model.body("cabinet").pos[1] = dy
-        model.body("drawer").pos[1] = dy
+        # Nuisance: the whole cabinet sits at a slightly different place; colours jitter.
+        dx, dy = rng.uniform(-0.01, 0.01), rng.uniform(-0.012, 0.012)
+        model.body("cabinet").pos[:2] = [-0.11 + dx, dy]
+        model.body("drawer").pos[:2] = [FRONT_X + dx, dy]
         jit = rng.uniform(-0.02, 0.02, 3)
         for name in ("drawer_front", "drawer_bottom", "drawer_side_l", "drawer_side_r", "drawer_back", "stem"):
             model.geom_rgba[model.geom(name).id, :3] = _RGB + jit
