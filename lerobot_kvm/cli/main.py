@@ -3,7 +3,7 @@
 import argparse
 import sys
 
-from . import catalogue, check_suite, contact_sheet, demo, record
+from . import catalogue, check_suite, contact_sheet, demo, overhead, record
 
 COMMANDS = {
     "record": record,
@@ -11,6 +11,7 @@ COMMANDS = {
     "check-suite": check_suite,
     "contact-sheet": contact_sheet,
     "catalogue": catalogue,
+    "overhead": overhead,
 }
 
 

@@ -177,7 +177,10 @@ class CodaPromptPool(nn.Module):
 
     def skill_relevance(self, query: Tensor) -> Tensor:
         """alpha_i [B, n_skills]: sum of the skill's component alphas, averaged over prompted layers."""
-        alphas = self.component_alphas(query)
+        return self.relevance_from_alphas(self.component_alphas(query))
+
+    def relevance_from_alphas(self, alphas: Tensor) -> Tensor:
+        """`skill_relevance` from already computed component alphas [n_layers, B, M_visible]."""
         return alphas.unflatten(-1, (self.n_skills, self.per_task)).sum(-1).mean(0)
 
     def skill_prompts(self, query: Tensor) -> Tensor:
@@ -191,9 +194,13 @@ class CodaPromptPool(nn.Module):
 
         v scales each component's alpha, so v = 1 multiplies by exactly 1.0 and reproduces CODA bit for bit.
         """
-        alphas = self.component_alphas(query)
+        return self.prompt_from_alphas(self.component_alphas(query), skill_weights)
+
+    def prompt_from_alphas(self, alphas: Tensor, skill_weights: Tensor | None = None) -> Tensor:
+        """`forward` from already computed component alphas [n_layers, B, M_visible] (computed once per step
+        and shared with the KVM's relevance scores)."""
         if skill_weights is not None:
-            expected = (query.shape[0], self.n_skills)
+            expected = (alphas.shape[1], self.n_skills)
             if tuple(skill_weights.shape) != expected:
                 raise ValueError(f"skill_weights must have shape {expected}, got {tuple(skill_weights.shape)}")
             alphas = alphas * skill_weights.to(alphas).repeat_interleave(self.per_task, dim=-1)

@@ -7,6 +7,8 @@ from lerobot.configs.types import FeatureType
 from lerobot.optim import AdamWConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from ..kvm.configuration import KvmConfig
+
 
 @PreTrainedConfig.register_subclass("coda_kvm")
 @dataclass
@@ -55,6 +57,9 @@ class CodaKvmConfig(PreTrainedConfig):
     # The skill a fresh policy begins (task 0).
     skill_name: str = "skill_0"
     skill_description: str = ""
+
+    # Knowledge Validity Module (paper §3, App. E): `--policy.kvm.<field>=...` on the command line.
+    kvm: KvmConfig = field(default_factory=KvmConfig)
 
     # Training preset (weight decay reaches the backbone only, never the prompt pool).
     optimizer_lr: float = 1e-3

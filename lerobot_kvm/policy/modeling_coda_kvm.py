@@ -1,12 +1,17 @@
 """`coda_kvm` policy: CODA-Prompt pool (queried by the frozen task-string embedding) prefix-tuning a small
 VLA-style backbone that predicts action chunks (L1 on normalized actions, ACT-style).
 
-Skill weights v [B, n_skills] (the KVM's validity scores, eq. 3) can be passed to `forward`,
-`predict_action_chunk` and `select_action`; leaving them out (or all ones) is plain CODA-Prompt.
+The Knowledge Validity Module (`lerobot_kvm.kvm`, attribute `kvm`) supervises the skills at inference: every
+model call of `select_action` / `predict_action_chunk` assesses the sensed context (E_c, smart gate, energy
+model) and fuses the skill prompts with the resulting weights (eqs. 2-4). It learns offline inside `forward()`
+during `lerobot-train` and online through `kvm_feedback()`. With `config.kvm.enabled=False` the policy is the
+plain CODA-Prompt core. Explicit skill weights [B, n_skills] passed to `forward`, `predict_action_chunk` or
+`select_action` bypass the KVM (all ones is plain CODA-Prompt).
 """
 
 from collections import deque
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -16,6 +21,9 @@ from lerobot.utils.device_utils import resolve_safetensors_device
 from safetensors.torch import load_file
 from torch import Tensor
 
+from ..kvm.online import apply_feedback
+from ..kvm.supervisor import KnowledgeValidityModule
+from ..kvm.telemetry import KvmStepTelemetry, KvmTrace
 from .backbone import PromptedBackbone
 from .coda_prompt import CodaPromptPool, Skill
 from .configuration_coda_kvm import CodaKvmConfig
@@ -63,12 +71,26 @@ class CodaKvmPolicy(PreTrainedPolicy):
             dim_model=config.dim_model,
             query_dim=config.query_dim,
         )
+        self.kvm = KnowledgeValidityModule(config.kvm, config.context_dim, config.query_dim, config.n_tasks)
         self.register_buffer("query_fingerprint", torch.zeros(config.query_dim))
         self._query_checked = False
         self.register_load_state_dict_post_hook(CodaKvmPolicy._after_load)
         self.backbone.requires_grad_(config.train_backbone)
         self.pool.begin_skill(config.skill_name, config.skill_description)
+        self._kvm_load_dataset_labels(kwargs.get("dataset_meta"))
+        self._kvm_telemetry: KvmStepTelemetry | None = None
+        self._kvm_trace = KvmTrace()
         self.reset()
+
+    def _kvm_load_dataset_labels(self, dataset_meta: Any) -> None:
+        """episode_index -> (skill, outcome, variant) from the recorder's labels, for offline KVM learning."""
+        root = getattr(dataset_meta, "root", None)
+        if root is None:
+            return
+        from ..datasets.recorder import LABELS_FILE, load_labels
+
+        if (Path(root) / LABELS_FILE).exists():
+            self.kvm_set_episode_labels(load_labels(root)["episodes"])
 
     @staticmethod
     def _after_load(module: "CodaKvmPolicy", _incompatible_keys: object) -> None:
@@ -89,9 +111,109 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self.reset()
         return index
 
+    # ----------------------------------------------------------------- KVM API
+    def kvm_active_skills(self) -> Tensor:
+        """[n_skills] bool: skills not pruned by the knowledge-base metabolism."""
+        return self.kvm.metabolism.active(self.n_skills)
+
+    def kvm_prune_skill(self, index: int) -> None:
+        """Deactivate a skill (weight 0 in the fused prompt while the KVM is enabled); recoverable."""
+        self._check_skill_index(index)
+        with torch.no_grad():
+            self.kvm.metabolism.pruned[index] = 1
+        self.reset()
+
+    def kvm_restore_skill(self, index: int) -> None:
+        """Reactivate a pruned skill (its statistics start afresh)."""
+        self._check_skill_index(index)
+        self.kvm.metabolism.restore(index)
+        self.reset()
+
+    def _check_skill_index(self, index: int) -> None:
+        if not 0 <= index < self.n_skills:
+            raise ValueError(f"skill index must be in [0, {self.n_skills}), got {index}")
+
+    def kvm_set_episode_labels(self, episodes: Sequence[dict]) -> int:
+        """Labels of dataset episodes (`load_labels(root)["episodes"]`) for offline KVM learning."""
+        return self.kvm.labels.load(episodes, use_shifted=self.config.kvm.use_shifted_offline)
+
+    @property
+    def kvm_telemetry(self) -> KvmStepTelemetry | None:
+        """The KVM assessment in force for the last action (None when the KVM is disabled)."""
+        return self._kvm_telemetry
+
+    def kvm_trace(self) -> KvmTrace:
+        """What was recorded since the last `reset()` (one attempt): contexts, tasks, actions, telemetry."""
+        return self._kvm_trace
+
+    def kvm_feedback(
+        self,
+        outcome: str,
+        trace: KvmTrace | None = None,
+        demonstration: dict[str, Any] | None = None,
+        gradient_steps: int | None = None,
+        task: str | None = None,
+    ) -> dict[str, Any]:
+        """Learn from one finished attempt (Algorithm 1, lines 26-40); see `lerobot_kvm.kvm.online`.
+
+        outcome: "success", "failure" or "catastrophe"; trace: the attempt (default: the current trace, which
+        must hold one environment); demonstration: an optional corrective demonstration (policy inputs and
+        normalized actions over T steps, see `kvm.online.make_demonstration`); gradient_steps: the budget of
+        KVM gradient steps (default `kvm.feedback_steps`). Returns a report of what was learned and decided.
+        """
+        trace = self._kvm_trace if trace is None else trace
+        report = apply_feedback(self, outcome, trace, demonstration, gradient_steps, task)
+        self.reset()
+        return report
+
+    @torch.no_grad()
+    def kvm_validity(self, batch: dict[str, Any]) -> Tensor:
+        """v [B, n_skills] of the batch's contexts with the gate bypassed (the risk model's judgement)."""
+        batch_size = self._check_observation(batch)
+        query = self.encode_query(self._tasks(batch, batch_size))
+        c_raw = self.kvm.raw_context(batch[self.config.context_key], query)
+        v = self.kvm.validity_of(c_raw, self.n_skills)
+        return v * self.kvm_active_skills().to(v)
+
+    def kvm_summary(self) -> dict[str, Any]:
+        """The KVM's memory at a glance (JSON-friendly)."""
+        kvm = self.kvm
+        tau = kvm.threshold()
+        hyps = [kvm.hypotheses.info(h) for h in kvm.hypotheses.ids()]
+        n = self.n_skills
+        return {
+            "enabled": self.config.kvm.enabled,
+            "gate": {
+                "tau": float(tau),
+                "mean": float(kvm.gate.stats[1]),
+                "std": float(kvm.gate.stats[2]),
+                "window": len(kvm.gate.window),
+            },
+            "buffers": {
+                "safe_offline": len(kvm.safe_offline),
+                "safe_online": len(kvm.safe_online),
+                "fail_offline": len(kvm.fail_offline),
+                "fail_online": len(kvm.fail_online),
+                "fail_permanent": kvm.n_permanent(),
+            },
+            "hypotheses": hyps,
+            "skills": [
+                {
+                    "index": s.index,
+                    "name": s.name,
+                    "pruned": bool(kvm.metabolism.pruned[s.index]),
+                    "fcrnc": float(kvm.metabolism.fcrnc()[s.index]),
+                    "srnc": float(kvm.metabolism.srnc()[s.index]),
+                }
+                for s in self.skills[:n]
+            ],
+        }
+
     # ----------------------------------------------------------------- LeRobot API
     def get_optim_params(self) -> list[dict[str, Any]]:
-        """Trainable parameters only; prompt parameters get no weight decay (old skills must never drift)."""
+        """Trainable parameters only; prompt parameters get no weight decay (old skills must never drift).
+
+        A third group holds the KVM's networks when it learns offline (their loss is added in `forward`)."""
         backbone = [p for p in self.backbone.parameters() if p.requires_grad]
         prompts = [p for p in self.pool.parameters() if p.requires_grad]
         groups: list[dict[str, Any]] = []
@@ -99,10 +221,17 @@ class CodaKvmPolicy(PreTrainedPolicy):
             groups.append({"params": backbone})
         if prompts:
             groups.append({"params": prompts, "weight_decay": 0.0})
+        if self.config.kvm.learn_offline:
+            groups.append({"params": self.kvm.learnable_parameters(), "weight_decay": 0.0})
         return groups
 
     def reset(self) -> None:
+        """Start a new attempt: empty action queue, new KVM trace."""
         self._action_queue: deque[Tensor] = deque([], maxlen=self.config.n_action_steps)
+        self._kvm_trace = KvmTrace()
+        self._kvm_telemetry = None
+        self._queued_interventions: Tensor | None = None
+        self.kvm.reset_runtime()
 
     def forward(
         self, batch: dict[str, Any], reduction: str = "mean", skill_weights: Tensor | None = None
@@ -110,7 +239,9 @@ class CodaKvmPolicy(PreTrainedPolicy):
         """L1 between predicted and target normalized action chunks, ignoring padded steps."""
         if reduction not in ("mean", "none"):
             raise ValueError(f"reduction must be 'mean' or 'none', got {reduction!r}")
-        pred = self._predict(batch, skill_weights)
+        batch_size = self._check_observation(batch)
+        query = self.encode_query(self._tasks(batch, batch_size))
+        pred = self._decode(batch, self.pool.component_alphas(query), skill_weights)
         target, valid = self._check_action(batch, pred.shape[0])
         err = (pred - target).abs() * valid.unsqueeze(-1)
         per_sample = err.sum(dim=(1, 2)) / (valid.sum(dim=1) * pred.shape[-1]).clamp_min(1)
@@ -121,23 +252,86 @@ class CodaKvmPolicy(PreTrainedPolicy):
             ortho = self.pool.ortho_penalty()
             loss = loss + self.config.ortho_weight * ortho
             info["ortho_loss"] = ortho.item()
+        if self.training and self.config.kvm.learn_offline and torch.is_grad_enabled():
+            kvm_loss, kvm_info = self._kvm_offline_loss(batch, query, batch_size)
+            loss = loss + self.config.kvm.loss_weight * kvm_loss
+            info.update(kvm_info)
         return loss, info
+
+    def kvm_learn_offline(self, batch: dict[str, Any]) -> tuple[Tensor, dict[str, float]]:
+        """The KVM's offline learning step alone (the term `forward()` adds to the action loss in training):
+        needs only the sensed context, the task strings and, optionally, `episode_index`. Fills the memories."""
+        context = batch.get(self.config.context_key)
+        if not isinstance(context, Tensor) or context.ndim != 2 or context.shape[1] != self.config.context_dim:
+            got = list(context.shape) if isinstance(context, Tensor) else type(context).__name__
+            raise ValueError(f"'{self.config.context_key}' must have shape [B, {self.config.context_dim}], got {got}")
+        if not torch.isfinite(context).all():
+            raise ValueError(f"observation '{self.config.context_key}' contains NaN or inf values")
+        batch_size = context.shape[0]
+        return self._kvm_offline_loss(batch, self.encode_query(self._tasks(batch, batch_size)), batch_size)
+
+    def _kvm_offline_loss(self, batch: dict[str, Any], query: Tensor, batch_size: int) -> tuple[Tensor, dict]:
+        """The KVM's offline learning step on dataset frames: (context, skill that produced it, outcome)."""
+        skills, outcome, usable = self.kvm.labels.lookup(
+            batch.get("episode_index"), batch_size, [s.name for s in self.skills], self.n_skills - 1
+        )
+        c_raw = self.kvm.raw_context(batch[self.config.context_key], query)
+        return self.kvm.offline_step(c_raw, skills, outcome, usable, self.kvm_active_skills())
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Any], skill_weights: Tensor | None = None) -> Tensor:
-        """Normalized action chunk [B, chunk_size, action_dim]."""
+        """Normalized action chunk [B, chunk_size, action_dim] (KVM-assessed unless skill weights are given)."""
         self.eval()
-        return self._predict(batch, skill_weights)
+        chunk, telemetry = self._infer(batch, skill_weights)
+        if telemetry is not None:
+            self._kvm_telemetry = telemetry
+        return chunk
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Any], skill_weights: Tensor | None = None) -> Tensor:
-        """Next normalized action [B, action_dim]; a new chunk (with the given skill weights) every
-        `n_action_steps` calls."""
+        """Next normalized action [B, action_dim]; a new chunk every `n_action_steps` calls, fused with the
+        KVM's skill weights (or the given ones). With `kvm.assess_every_step` the KVM assesses every call and
+        replans at once when the set of suppressed skills changes."""
         self.eval()
+        pending = None
+        if self._action_queue and self.config.kvm.assess_every_step and self._kvm_active(skill_weights):
+            pending = self._assess(batch)
+            self._kvm_telemetry = pending[2]
+            if self._queued_interventions is not None and torch.equal(
+                pending[2].intervention, self._queued_interventions
+            ):
+                pending = None
+            else:
+                self._action_queue.clear()
         if not self._action_queue:
-            chunk = self._predict(batch, skill_weights)[:, : self.config.n_action_steps]
-            self._action_queue.extend(chunk.transpose(0, 1))
-        return self._action_queue.popleft()
+            if pending is not None:
+                chunk, telemetry = self._decode(batch, pending[0], pending[1]), pending[2]
+            else:
+                chunk, telemetry = self._infer(batch, skill_weights)
+            self._action_queue.extend(chunk[:, : self.config.n_action_steps].transpose(0, 1))
+            self._kvm_telemetry = telemetry
+            if self.config.kvm.assess_every_step:
+                self._queued_interventions = None if telemetry is None else telemetry.intervention
+        action = self._action_queue.popleft()
+        if self.config.kvm.record_trace:
+            self._record_step(batch, action)
+        return action
+
+    def _record_step(self, batch: dict[str, Any], action: Tensor) -> None:
+        trace = self._kvm_trace
+        if len(trace) >= self.config.kvm.trace_capacity:
+            trace.truncated = True
+            return
+        context = batch.get(self.config.context_key)
+        if not isinstance(context, Tensor) or context.ndim != 2 or context.shape[0] != action.shape[0]:
+            return  # nothing to learn from (inputs are checked whenever a chunk is predicted)
+        trace.contexts.append(context.detach())
+        trace.tasks.append(self._tasks(batch, action.shape[0]))
+        trace.actions.append(action.detach())
+        trace.telemetry.append(self._kvm_telemetry)
+        if self.config.kvm.trace_observations and action.shape[0] == 1:  # batched evaluation: contexts only
+            keys = (*self.config.image_features, OBS_STATE, self.config.context_key)
+            trace.observations.append({k: batch[k].detach() for k in keys if isinstance(batch.get(k), Tensor)})
 
     # ----------------------------------------------------------------- query and prompt
     def encode_query(self, tasks: Sequence[str]) -> Tensor:
@@ -167,10 +361,34 @@ class CodaKvmPolicy(PreTrainedPolicy):
         """Per-skill prompt contributions c_i [prompt_layers, B, n_skills, prompt_length, dim_model]."""
         return self.pool.skill_prompts(self.encode_query(tasks))
 
+    def _kvm_active(self, skill_weights: Tensor | None) -> bool:
+        return self.config.kvm.enabled and skill_weights is None
+
+    def _assess(self, batch: dict[str, Any]) -> tuple[Tensor, Tensor | None, KvmStepTelemetry]:
+        """(component alphas, skill weights, telemetry) of one KVM assessment of the batch."""
+        batch_size = self._check_observation(batch)
+        query = self.encode_query(self._tasks(batch, batch_size))
+        alphas = self.pool.component_alphas(query)
+        weights, telemetry = self.kvm.assess(
+            batch[self.config.context_key], query, self.pool.relevance_from_alphas(alphas), self.kvm_active_skills()
+        )
+        return alphas, weights, telemetry
+
+    def _infer(self, batch: dict[str, Any], skill_weights: Tensor | None) -> tuple[Tensor, KvmStepTelemetry | None]:
+        """One model call: KVM assessment (when enabled and no explicit weights) + fused prompt + backbone."""
+        if self._kvm_active(skill_weights):
+            alphas, weights, telemetry = self._assess(batch)
+            return self._decode(batch, alphas, weights), telemetry
+        return self._predict(batch, skill_weights), None
+
     def _predict(self, batch: dict[str, Any], skill_weights: Tensor | None) -> Tensor:
         batch_size = self._check_observation(batch)
         query = self.encode_query(self._tasks(batch, batch_size))
-        prompts = self.pool(query, skill_weights)
+        return self._decode(batch, self.pool.component_alphas(query), skill_weights)
+
+    def _decode(self, batch: dict[str, Any], alphas: Tensor, skill_weights: Tensor | None) -> Tensor:
+        """Eq. 4: actions from the backbone prefixed by the fused prompt (component alphas [L, B, M])."""
+        prompts = self.pool.prompt_from_alphas(alphas, skill_weights)
         images = [batch[key] for key in self.config.image_features]
         return self.backbone(images, batch[OBS_STATE], batch[self.config.context_key], prompts)
 

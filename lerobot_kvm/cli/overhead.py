@@ -1,0 +1,67 @@
+"""`lerobot-kvm overhead`: per-step latency with the KVM off / on with the gate closed / on with it forced open."""
+
+import argparse
+import json
+from pathlib import Path
+
+
+def _inputs(policy, policy_path: Path, task: str, variant: str, seed: int) -> tuple[dict, str]:
+    """A real observation of the scenario through the checkpoint's preprocessor (random inputs without one)."""
+    import torch
+
+    if any(policy_path.glob("policy_preprocessor*.json")):
+        from lerobot.policies.factory import make_pre_post_processors
+
+        from ..envs.env import KvmObsolescenceEnv
+        from ..kvm.evaluation import observation_batch
+
+        preprocessor, _ = make_pre_post_processors(policy.config, pretrained_path=str(policy_path))
+        env = KvmObsolescenceEnv(task=task, variant=variant)
+        try:
+            obs, _ = env.reset(seed=seed)
+            return preprocessor(observation_batch(obs, env.task_description)), f"{task}/{variant} observation"
+        finally:
+            env.close()
+    gen = torch.Generator().manual_seed(seed)
+    batch = {k: torch.rand(1, *ft.shape, generator=gen) for k, ft in policy.config.input_features.items()}
+    batch["task"] = ["pick up the object"]
+    return {k: v.to(policy.config.device) if hasattr(v, "to") else v for k, v in batch.items()}, "random inputs"
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from ..kvm.overhead import measure_overhead
+    from ..policy import CodaKvmPolicy
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    path = Path(args.policy_path)
+    if not (path / "model.safetensors").exists():
+        raise FileNotFoundError(f"{path} is not a coda_kvm checkpoint (no model.safetensors)")
+    kwargs = {"device": args.device} if args.device else {}
+    policy = CodaKvmPolicy.from_pretrained(path, **kwargs)
+    batch, source = _inputs(policy, path, args.task, args.variant, args.seed)
+    result = measure_overhead(policy, batch, steps=args.steps, warmup=args.warmup, block=args.block)
+    result.update(policy_path=str(path), inputs=source)
+    text = json.dumps(result, indent=2)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(text + "\n")
+    print(text)
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("overhead", help="KVM latency overhead: off vs gate closed vs gate open (ratios)")
+    p.add_argument("--policy-path", required=True, help="a coda_kvm checkpoint (pretrained_model directory)")
+    p.add_argument("--json", help="write the measurement here")
+    p.add_argument("--steps", type=int, default=200, help="model calls per mode")
+    p.add_argument("--warmup", type=int, default=10)
+    p.add_argument("--block", type=int, default=10, help="calls per mode before switching to the next")
+    p.add_argument("--task", default="egg_vs_stone", help="scenario providing the observation")
+    p.add_argument("--variant", default="prior")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", help="override the checkpoint's device (e.g. cpu)")
+    p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    p.set_defaults(func=run)

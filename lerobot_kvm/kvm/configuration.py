@@ -1,0 +1,181 @@
+"""`KvmConfig`: every Knowledge Validity Module setting, nested in `CodaKvmConfig` as field `kvm`.
+
+Defaults follow the paper's Appendix E where it gives a value (E_c MLP 2x128, energy MLP 3x256, k=3, N=1000,
+gamma=1, l0'=-5, m_e=10, N_p=3, tau_high=0.8, tau_v=0.1, pruning above 0.8 over the last 5 new tasks). The
+other values are this implementation's choices; each is documented next to its field. On the command line
+every field is reachable as `--policy.kvm.<field>=...` (draccus nested dataclass).
+"""
+
+from dataclasses import dataclass, field
+
+RISK_MODELS = ("energy", "bce")
+
+
+@dataclass
+class KvmConfig:
+    # ------------------------------------------------------------------ ablation switches (same checkpoint)
+    enabled: bool = True  # False: v is never computed, actions are exactly the CODA-Prompt core's
+    smart_gate: bool = True  # False ("w/o smart gate"): full assessment at every step
+    risk_model: str = "energy"  # "energy" (E_theta, eq. 2) or "bce" (MLP classifier trained with BCE)
+    force_validity: float | None = None  # testing/diagnostics: every candidate's v set to this value
+
+    # ------------------------------------------------------------------ context encoder E_c (App. E: MLP 2x128)
+    encoder_hidden: list[int] = field(default_factory=lambda: [128, 128])
+    latent_dim: int = 32  # size of mu_c
+    use_query: bool = True  # c_raw = [sensed context, frozen query embedding q(x)] (multimodal context)
+    query_weight: float = 1.0  # weight of the query's reconstruction residual in sigma_c^2
+    # Online only: the gate compares the mean of the per-frame sigma_c^2 over the last W control steps
+    # (W=1: the current frame). The per-frame context already carries velocity, tracking error and the last
+    # action, so the encoder itself is per-frame, identical offline and online.
+    context_window: int = 1
+
+    # ------------------------------------------------------------------ smart gate (eq. 1)
+    gate_k: float = 3.0
+    gate_window: int = 1000  # N: the last N successful routine interactions (control steps)
+    gate_min_count: int = 32  # fewer safe interactions than this: no statistics yet, so always assess
+
+    # ------------------------------------------------------------------ energy model (eq. 11, App. E: MLP 3x256)
+    energy_hidden: list[int] = field(default_factory=lambda: [256, 256, 256])
+    skill_embed_dim: int = 32
+    feature_dim: int = 64  # size of the joint feature h = join(mu_c, skill embedding)
+    energy_max: float = 20.0  # E = E_max * tanh(raw / E_max): bounded, so eq. 6's first term cannot run away
+
+    # ------------------------------------------------------------------ validity (eq. 2) and fusion (eq. 3)
+    gamma: float = 1.0
+    l0: float = -5.0  # l0'
+    tau_v: float = 0.1  # v below this is a suppression ("intervention"); also eq. 8's threshold
+    # Eq. 3 as a re-weighting of the unnormalised CODA prompt: skill weights v_i * S / sum_j v_j |alpha_j|
+    # with S = sum_j |alpha_j| (identity at v = 1; suppressing a skill shifts its mass to the others).
+    fusion_renormalize: bool = True
+    fusion_eps: float = 1e-3  # the renormalisation factor never exceeds 1 / fusion_eps
+    candidate_min_alpha: float = 0.2  # a skill is "proposed" (P_cand) when its normalised relevance >= this
+
+    # ------------------------------------------------------------------ losses (eqs. 5, 6, 13)
+    contrast_margin: float = 0.5  # m of eq. 5 (features h lie on the unit sphere)
+    energy_margin: float = 10.0  # m_e of eq. 6
+    # Eq. 6's safe term stops at E = -energy_floor (v = sigmoid(gamma * (floor - l0')) ~ 1): see losses.energy_loss
+    energy_floor: float | None = 10.0
+    energy_weight: float = 1.0  # lambda of eq. 13
+    recon_weight: float = 1.0  # E_c's reconstruction loss on routine safe contexts (what makes sigma_c^2)
+    bce_weight: float = 1.0  # the "w/o energy model" classifier, trained alongside on detached features
+
+    # ------------------------------------------------------------------ offline learning inside forward()
+    learn_offline: bool = True
+    loss_weight: float = 0.1  # KVM loss added to the action loss (KVM parameters are disjoint from the core's)
+    cross_skill_negatives: bool = True  # (context of skill i, skill j != i) as negatives when >1 skill exists
+    synthetic_negatives: bool = True  # off-manifold perturbations of safe sensed contexts as negatives
+    synthetic_noise: float = 3.0  # std of the perturbation, in normalized context units
+    use_shifted_offline: bool = False  # leakage rule: frames of a benchmark-shifted variant are never used
+    replay_size: int = 32  # replayed safe/fail samples per offline step (keeps earlier skills' manifold)
+    label_capacity: int = 16384  # episodes whose (skill, outcome, variant) labels are kept in the checkpoint
+
+    # ------------------------------------------------------------------ memory (fixed-capacity, persistent)
+    safe_offline_capacity: int = 2048  # reservoir over the dataset's safe (context, skill) samples
+    safe_online_capacity: int = 1024  # FIFO of safe samples met online
+    fail_offline_capacity: int = 512  # reservoir over recorded failure frames (non-benchmark contexts)
+    fail_online_capacity: int = 1024  # provisional and confirmed (permanent) h_fail negatives
+
+    # ------------------------------------------------------------------ online learning (feedback API)
+    feedback_steps: int = 100  # default gradient-step budget of one feedback call
+    feedback_batch: int = 128
+    feedback_lr: float = 1e-3
+    fail_context_steps: int = 10  # the last K steps before a failure are always part of the failure context
+
+    # ------------------------------------------------------------------ attribution (App. D)
+    hypothesis_capacity: int = 64
+    persistence: int = 3  # N_p: confirmed when the intervention counter exceeds N_p ...
+    tau_high: float = 0.8  # ... and the intervention was necessary (normalised alpha_i > tau_high)
+    similarity: float = 0.9  # cosine similarity of mu_c that makes a context "similar" to a hypothesis's
+    gap_alpha: float = 0.5  # knowledge gap: every alternative's normalised relevance stays below this
+    focused_steps: int = 50  # gradient steps on a newly created skill only
+    focused_lr: float = 3e-3
+    focused_key_weight: float = 1.0  # pulls the new skill's CODA keys towards the seed queries
+
+    # ------------------------------------------------------------------ metabolism (eqs. 7-8)
+    metabolism_window: int = 5  # the N most recent new tasks
+    prune_threshold: float = 0.8
+    prune_min_interactions: int = 5
+
+    # ------------------------------------------------------------------ telemetry and traces
+    record_trace: bool = True
+    trace_observations: bool = True  # keep per-step observations of single-environment attempts (new-skill seeds)
+    trace_capacity: int = 2000  # control steps kept per trace
+    assess_every_step: bool = False  # True: assess at every control step and replan when a suppression starts
+
+    def __post_init__(self) -> None:
+        if self.risk_model not in RISK_MODELS:
+            raise ValueError(f"`kvm.risk_model` must be one of {RISK_MODELS}, got {self.risk_model!r}")
+        positive_ints = {
+            "latent_dim": self.latent_dim,
+            "context_window": self.context_window,
+            "gate_window": self.gate_window,
+            "skill_embed_dim": self.skill_embed_dim,
+            "feature_dim": self.feature_dim,
+            "replay_size": self.replay_size,
+            "label_capacity": self.label_capacity,
+            "safe_offline_capacity": self.safe_offline_capacity,
+            "safe_online_capacity": self.safe_online_capacity,
+            "fail_offline_capacity": self.fail_offline_capacity,
+            "fail_online_capacity": self.fail_online_capacity,
+            "feedback_batch": self.feedback_batch,
+            "fail_context_steps": self.fail_context_steps,
+            "hypothesis_capacity": self.hypothesis_capacity,
+            "persistence": self.persistence,
+            "metabolism_window": self.metabolism_window,
+            "prune_min_interactions": self.prune_min_interactions,
+            "trace_capacity": self.trace_capacity,
+        }
+        for name, value in positive_ints.items():
+            if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
+                raise ValueError(f"`kvm.{name}` must be a positive integer, got {value!r}")
+        for name in ("gate_min_count", "feedback_steps", "focused_steps"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+                raise ValueError(f"`kvm.{name}` must be a non-negative integer, got {value!r}")
+        for name in ("encoder_hidden", "energy_hidden"):
+            value = getattr(self, name)
+            if not value or any(not isinstance(v, int) or v <= 0 for v in value):
+                raise ValueError(f"`kvm.{name}` must be a non-empty list of positive ints, got {value!r}")
+        positive_floats = {
+            "gamma": self.gamma,
+            "energy_max": self.energy_max,
+            "energy_margin": self.energy_margin,
+            "fusion_eps": self.fusion_eps,
+            "feedback_lr": self.feedback_lr,
+            "focused_lr": self.focused_lr,
+        }
+        for name, value in positive_floats.items():
+            if not value > 0:
+                raise ValueError(f"`kvm.{name}` must be > 0, got {value!r}")
+        non_negative = {
+            "gate_k": self.gate_k,
+            "query_weight": self.query_weight,
+            "contrast_margin": self.contrast_margin,
+            "energy_weight": self.energy_weight,
+            "recon_weight": self.recon_weight,
+            "bce_weight": self.bce_weight,
+            "loss_weight": self.loss_weight,
+            "synthetic_noise": self.synthetic_noise,
+            "focused_key_weight": self.focused_key_weight,
+        }
+        for name, value in non_negative.items():
+            if not value >= 0:
+                raise ValueError(f"`kvm.{name}` must be >= 0, got {value!r}")
+        unit = {
+            "tau_v": self.tau_v,
+            "tau_high": self.tau_high,
+            "similarity": self.similarity,
+            "prune_threshold": self.prune_threshold,
+        }
+        for name, value in unit.items():
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"`kvm.{name}` must be in [0, 1], got {value!r}")
+        if self.force_validity is not None and not 0.0 <= self.force_validity <= 1.0:
+            raise ValueError(f"`kvm.force_validity` must be None or in [0, 1], got {self.force_validity!r}")
+        if self.energy_floor is not None and not 0 < self.energy_floor < self.energy_max:
+            raise ValueError(f"`kvm.energy_floor` must be None or in (0, energy_max), got {self.energy_floor!r}")
+        if self.energy_margin >= self.energy_max:
+            raise ValueError(
+                f"`kvm.energy_margin` ({self.energy_margin}) must be below `kvm.energy_max` ({self.energy_max}): "
+                "bounded energies could never reach the margin"
+            )

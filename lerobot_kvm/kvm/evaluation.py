@@ -1,0 +1,183 @@
+"""Helpers to exercise the KVM on the simulated suite: attempts, expert demonstrations, detection AUROC.
+
+An attempt runs the policy in a `KvmObsolescenceEnv` the way `lerobot-eval` does (LeRobot's
+`preprocess_observation`, the policy's pre/post-processors, `select_action`) and returns the outcome with the
+policy's KVM trace; an expert rollout records a corrective demonstration in the policy's input format.
+"""
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .online import make_demonstration
+from .telemetry import KvmTrace
+
+Processor = Callable[[dict[str, Any]], Any]
+
+
+def auroc(hazardous: Sequence[float] | Tensor, safe: Sequence[float] | Tensor) -> float:
+    """Area under the ROC curve of a risk score (higher = more hazardous): P(risk_h > risk_s), ties count 1/2."""
+    h = torch.as_tensor(hazardous, dtype=torch.float64).flatten()
+    s = torch.as_tensor(safe, dtype=torch.float64).flatten()
+    if not len(h) or not len(s):
+        raise ValueError(f"AUROC needs both classes, got {len(h)} hazardous and {len(s)} safe scores")
+    scores = torch.cat([h, s])
+    order = torch.argsort(scores)
+    ranks = torch.empty_like(scores)
+    ranks[order] = torch.arange(1, len(scores) + 1, dtype=torch.float64)
+    for value in torch.unique(scores):  # average ranks of ties
+        tie = scores == value
+        if int(tie.sum()) > 1:
+            ranks[tie] = ranks[tie].mean()
+    u = ranks[: len(h)].sum() - len(h) * (len(h) + 1) / 2
+    return float(u / (len(h) * len(s)))
+
+
+def observation_batch(observation: dict[str, Any], task: str) -> dict[str, Any]:
+    """One environment observation in LeRobot's policy format (before the policy's preprocessor)."""
+    from lerobot.envs.utils import preprocess_observation
+
+    batch = preprocess_observation(observation)
+    batch["task"] = [task]
+    return batch
+
+
+def outcome_of(info: dict[str, Any]) -> str:
+    if info.get("catastrophe"):
+        return "catastrophe"
+    return "success" if info.get("is_success") else "failure"
+
+
+@torch.no_grad()
+def run_attempt(
+    policy: Any,
+    env: Any,
+    preprocessor: Processor,
+    postprocessor: Processor,
+    seed: int | None = None,
+    max_steps: int | None = None,
+) -> dict[str, Any]:
+    """One attempt of the policy: {"outcome", "steps", "catastrophe_kind", "trace", "actions"}."""
+    obs, info = env.reset(seed=seed)
+    policy.reset()
+    steps = 0
+    limit = max_steps or env._max_episode_steps
+    for steps in range(1, limit + 1):  # noqa: B007
+        batch = preprocessor(observation_batch(obs, env.task_description))
+        with torch.inference_mode():
+            action = policy.select_action(batch)
+        action = postprocessor(action)
+        obs, _, terminated, truncated, info = env.step(action[0].cpu().numpy())
+        if terminated or truncated:
+            break
+    return {
+        "outcome": outcome_of(info),
+        "steps": steps,
+        "catastrophe_kind": info.get("catastrophe_kind", ""),
+        "trace": policy.kvm_trace(),
+    }
+
+
+def expert_rollout(
+    env: Any, skill: str, preprocessor: Processor, seed: int | None = None, policy_skill: str | None = None
+) -> tuple[dict[str, Any], str]:
+    """Run the scenario's scripted expert for `skill`; returns (demonstration in the policy's input format with
+    normalized actions, outcome). `policy_skill` names the policy skill the demonstration shows, if known."""
+    obs, info = env.reset(seed=seed)
+    expert = env.scenario.expert(skill)
+    steps = []
+    for _ in range(env._max_episode_steps):
+        action = np.asarray(expert.act(env), dtype=np.float32)
+        batch = observation_batch(obs, env.task_description)
+        batch["action"] = torch.from_numpy(action).unsqueeze(0)
+        steps.append(preprocessor(batch))
+        obs, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            break
+    return make_demonstration(steps, skill=policy_skill), outcome_of(info)
+
+
+def trace_from_demonstration(demo: dict[str, Any], context_key: str = "observation.context") -> KvmTrace:
+    """A one-environment trace of an externally driven attempt (e.g. the prior skill's expert on a shifted
+    variant): contexts, tasks, actions and observations, without KVM assessments (as if the KVM was off)."""
+    steps = demo["action"].shape[0]
+    obs_keys = [k for k in demo if k.startswith("observation.") and isinstance(demo[k], Tensor)]
+    return KvmTrace(
+        tasks=[[t] for t in demo["task"]],
+        contexts=[demo[context_key][t : t + 1] for t in range(steps)],
+        actions=[demo["action"][t : t + 1] for t in range(steps)],
+        telemetry=[None] * steps,
+        observations=[{k: demo[k][t : t + 1] for k in obs_keys} for t in range(steps)],
+    )
+
+
+def context_validity(policy: Any, demos: Sequence[dict[str, Any]], skill: int) -> Tensor:
+    """v of `skill` at every step of the given demonstrations/rollouts (gate bypassed), concatenated."""
+    values = []
+    for demo in demos:
+        batch = {k: v for k, v in demo.items() if k.startswith("observation.")}
+        batch["task"] = demo["task"]
+        values.append(policy.kvm_validity(batch)[:, skill])
+    return torch.cat(values)
+
+
+@torch.no_grad()
+def gate_rate(policy: Any, demos: Sequence[dict[str, Any]]) -> float:
+    """Share of the steps of the given demonstrations/rollouts on which the smart gate would open."""
+    opened = total = 0
+    kvm = policy.kvm
+    for demo in demos:
+        c_raw = kvm.raw_context(demo[policy.config.context_key], policy.encode_query(demo["task"]))
+        _, sigma2, _ = kvm.encode(c_raw)
+        opened += int((sigma2 > kvm.threshold()).sum())
+        total += len(sigma2)
+    return opened / max(total, 1)
+
+
+def dataset_contexts(root: Any, repo_id: str = "local/dataset") -> dict[str, Any]:
+    """The sensed contexts of a recorded dataset without decoding a single image: normalized with the dataset's
+    own statistics (MEAN_STD, as the policy's preprocessor does), with task strings and episode indices."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    ds = LeRobotDataset(repo_id, root=root)
+    cols = ds.hf_dataset.select_columns(["observation.context", "episode_index", "task_index"])
+
+    def column(name: str) -> Tensor:
+        values = cols[name]
+        return values if isinstance(values, Tensor) else torch.stack([torch.as_tensor(v) for v in values])
+
+    stats = ds.meta.stats["observation.context"]
+    mean = torch.as_tensor(stats["mean"], dtype=torch.float32)
+    std = torch.as_tensor(stats["std"], dtype=torch.float32)
+    task_of = {int(i): str(t) for t, i in zip(ds.meta.tasks.index, ds.meta.tasks["task_index"], strict=True)}
+    return {
+        "observation.context": (column("observation.context").float() - mean) / (std + 1e-8),
+        "episode_index": column("episode_index").reshape(-1).long(),
+        "task": [task_of[int(i)] for i in column("task_index").reshape(-1)],
+        "stats": ds.meta.stats,
+    }
+
+
+def pretrain_kvm(
+    policy: Any, data: dict[str, Any], steps: int, batch_size: int = 32, lr: float = 1e-3, where: Tensor | None = None
+) -> dict[str, float]:
+    """Offline KVM learning alone (the KVM term of `forward()`), on `dataset_contexts` rows (optionally a subset)."""
+    rows = torch.nonzero(where).flatten() if where is not None else torch.arange(len(data["task"]))
+    optimizer = torch.optim.AdamW(policy.kvm.learnable_parameters(), lr=lr, weight_decay=0.0)
+    info: dict[str, float] = {}
+    with torch.enable_grad():
+        for _ in range(steps):
+            idx = rows[torch.randint(len(rows), (batch_size,))]
+            batch = {
+                "observation.context": data["observation.context"][idx],
+                "episode_index": data["episode_index"][idx],
+                "task": [data["task"][i] for i in idx.tolist()],
+            }
+            loss, info = policy.kvm_learn_offline(batch)
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+    return info

@@ -1,0 +1,107 @@
+"""Knowledge-base metabolism (paper §3.2, App. A.1, eqs. 7-8): FCRNC and SRNC per skill, pruning.
+
+An interaction is one attempt. For every skill proposed by the CL core in that attempt (a candidate at some
+step), the attempt's outcome and whether the KVM suppressed the skill (min_t v_t < tau_v) are counted in the
+slot of the attempt's task. Only the N most recent new tasks have slots (a sliding window; a new task evicts
+the oldest slot). FCRNC_i = failures / proposals and SRNC_i = suppressions / proposals over the window.
+
+A skill whose FCRNC or SRNC is above the threshold while the window is full (N new tasks seen) and it was
+proposed at least `min_interactions` times is pruned: deactivated (weight 0 in the fused prompt, no longer a
+candidate), never deleted from the checkpoint, and restorable.
+"""
+
+import hashlib
+
+import torch
+from torch import Tensor, nn
+
+
+def task_key(task: str) -> int:
+    """A stable non-negative 63-bit id of a task string."""
+    return int.from_bytes(hashlib.sha1(task.encode("utf-8")).digest()[:8], "big") >> 1
+
+
+def fcrnc(failed: Tensor, proposed: Tensor) -> Tensor:
+    """Eq. 7 from counts [S, N] (or [S]); 0 for skills never proposed."""
+    p = proposed.sum(-1) if proposed.ndim > 1 else proposed
+    f = failed.sum(-1) if failed.ndim > 1 else failed
+    return torch.where(
+        p > 0, f.to(torch.float32) / p.clamp_min(1).to(torch.float32), torch.zeros_like(p, dtype=torch.float32)
+    )
+
+
+def srnc(suppressed: Tensor, proposed: Tensor) -> Tensor:
+    """Eq. 8 from counts [S, N] (or [S]); 0 for skills never proposed."""
+    return fcrnc(suppressed, proposed)
+
+
+class SkillMetabolism(nn.Module):
+    def __init__(self, max_skills: int, window: int, threshold: float, min_interactions: int) -> None:
+        super().__init__()
+        self.window = window
+        self.threshold = threshold
+        self.min_interactions = min_interactions
+        self.register_buffer("task_keys", torch.full((window,), -1, dtype=torch.int64))
+        self.register_buffer("tasks_seen", torch.zeros(1, dtype=torch.int64))
+        self.register_buffer("proposed", torch.zeros(max_skills, window, dtype=torch.int64))
+        self.register_buffer("failed", torch.zeros(max_skills, window, dtype=torch.int64))
+        self.register_buffer("suppressed", torch.zeros(max_skills, window, dtype=torch.int64))
+        self.register_buffer("pruned", torch.zeros(max_skills, dtype=torch.int64))
+
+    @torch.no_grad()
+    def _slot(self, task: str) -> int:
+        key = task_key(task)
+        hit = torch.nonzero(self.task_keys == key).flatten()
+        if len(hit):
+            return int(hit[0])
+        slot = int(self.tasks_seen.item()) % self.window
+        self.task_keys[slot] = key
+        self.proposed[:, slot] = 0
+        self.failed[:, slot] = 0
+        self.suppressed[:, slot] = 0
+        self.tasks_seen += 1
+        return slot
+
+    @torch.no_grad()
+    def record(self, task: str, proposed: Tensor, failed: bool, suppressed: Tensor) -> None:
+        """One interaction: proposed [S] bool, suppressed [S] bool (S <= max_skills)."""
+        slot = self._slot(task)
+        s = proposed.shape[0]
+        p = proposed.to(self.proposed.device, torch.int64)
+        self.proposed[:s, slot] += p
+        self.failed[:s, slot] += p * int(failed)
+        self.suppressed[:s, slot] += p * suppressed.to(self.proposed.device, torch.int64)
+
+    def fcrnc(self) -> Tensor:
+        return fcrnc(self.failed, self.proposed)
+
+    def srnc(self) -> Tensor:
+        return srnc(self.suppressed, self.proposed)
+
+    @property
+    def window_full(self) -> bool:
+        return int(self.tasks_seen.item()) >= self.window
+
+    @torch.no_grad()
+    def check_prune(self, n_skills: int) -> list[int]:
+        """Prune (and return) skills whose FCRNC or SRNC stays above the threshold over a full window."""
+        if not self.window_full:
+            return []
+        f, s = self.fcrnc(), self.srnc()
+        enough = self.proposed.sum(-1) >= self.min_interactions
+        newly = []
+        for i in range(n_skills):
+            if not self.pruned[i] and enough[i] and (f[i] > self.threshold or s[i] > self.threshold):
+                self.pruned[i] = 1
+                newly.append(i)
+        return newly
+
+    @torch.no_grad()
+    def restore(self, skill: int) -> None:
+        self.pruned[skill] = 0
+        self.proposed[skill] = 0
+        self.failed[skill] = 0
+        self.suppressed[skill] = 0
+
+    def active(self, n_skills: int) -> Tensor:
+        return self.pruned[:n_skills] == 0

@@ -1,0 +1,440 @@
+"""Online learning through the feedback API (Algorithm 1, lines 26-40; App. D).
+
+`apply_feedback(policy, outcome, trace, demonstration, gradient_steps)` is what `policy.kvm_feedback(...)` runs
+after an attempt:
+
+* always: the attempt is one interaction of the knowledge-base metabolism (eqs. 7-8; pruning check).
+* failure: the culprit (minimal counterfactual: the skill that carried the largest share of the fused prompt
+  over the last K steps) and the failure context (steps outside the safe experience, sigma_c^2 > tau, plus the
+  last K steps) form a low-confidence hypothesis, or add evidence to a matching one. The failure context paired
+  with the culprit becomes provisional h_fail negatives; a corrective demonstration gives positives for the
+  skill that demonstrates the safe strategy (its name in `demonstration["skill"]`, else the most relevant
+  alternative) and, where its contexts are unfamiliar, more negatives for the culprit. Then a fixed budget of
+  gradient steps updates the KVM, replaying the safe memory so that what was safe stays safe. This first update
+  is what lowers v(culprit, failure context) already on the next attempt; the hypothesis governs confirmation.
+* success: safe samples for the dominant skill (routine ones, without intervention, also feed the gate window
+  and E_c's reconstruction). Interventions (a candidate suppressed, v_i < tau_v) in a context similar to an open
+  hypothesis of that skill count for it; an intervention confirms it when the counter exceeds N_p and the skill
+  was necessary (normalised alpha_i > tau_high). Confirmation makes the hypothesis's negatives permanent and, if
+  every alternative stayed weak (knowledge gap), creates a new skill seeded from this successful interaction
+  (and the demonstration, if any): new CODA components (Gram-Schmidt, `policy.begin_new_skill`), KVM positives
+  for it, and a few focused gradient steps on the new skill's parameters only.
+"""
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import torch
+import torch.nn.functional as F  # noqa: N812
+from torch import Tensor
+
+from .attribution import OPEN, culprit_skill, knowledge_gap, normalised_relevance
+from .fusion import fuse_weights
+from .telemetry import KvmTrace
+
+if TYPE_CHECKING:
+    from ..policy.modeling_coda_kvm import CodaKvmPolicy
+
+OUTCOMES = ("success", "failure", "catastrophe")
+ACTION = "action"
+ACTION_PAD = "action_is_pad"
+
+
+# ---------------------------------------------------------------------------- demonstrations and seed frames
+def make_demonstration(steps: Sequence[dict[str, Any]], skill: str | None = None) -> dict[str, Any]:
+    """Stack per-step policy inputs into a demonstration.
+
+    Each step is a preprocessed batch of one environment: observation tensors [1, ...], "action" [1, A] (the
+    expert's action normalized by the same preprocessor) and "task" (a string or a one-element list). `skill`
+    optionally names the policy skill that demonstrates the safe strategy.
+    """
+    if not steps:
+        raise ValueError("a demonstration needs at least one step")
+    keys = [k for k, v in steps[0].items() if isinstance(v, Tensor)]
+    if ACTION not in keys:
+        raise ValueError(f"demonstration steps need an '{ACTION}' tensor, got keys {sorted(steps[0])}")
+    demo: dict[str, Any] = {}
+    for key in keys:
+        demo[key] = torch.cat([s[key] for s in steps])  # each step carries its batch dimension of 1
+    tasks = []
+    for s in steps:
+        task = s.get("task")
+        tasks.append(task[0] if isinstance(task, list | tuple) else task)
+    if not all(isinstance(t, str) for t in tasks):
+        raise ValueError("every demonstration step needs a 'task' string")
+    demo["task"] = tasks
+    if skill is not None:
+        demo["skill"] = skill
+    return demo
+
+
+def _chunk_targets(actions: Tensor, chunk: int) -> tuple[Tensor, Tensor]:
+    """Action chunks [T, chunk, A] from a trajectory [T, A] and their padding mask [T, chunk]."""
+    t_len = actions.shape[0]
+    idx = torch.arange(t_len).unsqueeze(1) + torch.arange(chunk).unsqueeze(0)
+    pad = idx >= t_len
+    return actions[idx.clamp(max=t_len - 1)], pad
+
+
+def _demo_frames(policy: "CodaKvmPolicy", demo: dict[str, Any]) -> dict[str, Any]:
+    keys = (*policy.config.image_features, "observation.state", policy.config.context_key)
+    missing = [k for k in (*keys, ACTION) if not isinstance(demo.get(k), Tensor)]
+    if missing:
+        raise ValueError(f"demonstration is missing tensors {missing}; it has keys {sorted(demo)}")
+    t_len = demo[ACTION].shape[0]
+    tasks = demo.get("task")
+    tasks = [tasks] * t_len if isinstance(tasks, str) else list(tasks or [])
+    if len(tasks) != t_len:
+        raise ValueError(f"demonstration has {len(tasks)} task strings for {t_len} steps")
+    for k in keys:
+        if demo[k].shape[0] != t_len:
+            raise ValueError(f"demonstration '{k}' has {demo[k].shape[0]} steps, 'action' has {t_len}")
+    if not all(torch.isfinite(demo[k]).all() for k in (*keys, ACTION)):
+        raise ValueError("demonstration contains NaN or inf values")
+    frames = {k: demo[k] for k in keys}
+    frames[ACTION], frames[ACTION_PAD] = _chunk_targets(demo[ACTION], policy.config.chunk_size)
+    frames["task"] = tasks
+    return frames
+
+
+def _trace_frames(policy: "CodaKvmPolicy", trace: KvmTrace) -> dict[str, Any] | None:
+    """Seed frames (observations + the actions the policy executed) of a successful one-environment trace."""
+    if not trace.observations or len(trace.observations) != len(trace):
+        return None
+    keys = (*policy.config.image_features, "observation.state", policy.config.context_key)
+    if not all(k in trace.observations[0] for k in keys):
+        return None
+    frames: dict[str, Any] = {k: torch.cat([o[k] for o in trace.observations]) for k in keys}
+    frames[ACTION], frames[ACTION_PAD] = _chunk_targets(torch.cat(trace.actions), policy.config.chunk_size)
+    frames["task"] = [t[0] for t in trace.tasks]
+    return frames
+
+
+def _cat_frames(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k in parts[0]:
+        out[k] = sum((p[k] for p in parts), []) if k == "task" else torch.cat([p[k] for p in parts])
+    return out
+
+
+# ---------------------------------------------------------------------------- focused fine-tuning of a new skill
+def focused_finetune(
+    policy: "CodaKvmPolicy",
+    frames: dict[str, Any],
+    skill: int,
+    steps: int,
+    lr: float,
+    key_weight: float,
+    other_queries: Tensor | None = None,
+) -> dict[str, float]:
+    """A few gradient steps on skill `skill`'s CODA parameters only (backbone and other skills frozen).
+
+    The action loss is computed with the fused prompt the KVM will use in these contexts (its validities, with
+    the current relevances), so what is trained is what will run. A key term pulls the new skill's component
+    relevances towards 1 on the seed queries and below 0 on other known queries.
+    """
+    if steps <= 0:
+        return {}
+    pool = policy.pool
+    params = list(pool.tasks[skill].parameters())
+    if not all(p.requires_grad for p in params):
+        raise RuntimeError(f"skill {skill} is not the skill being learned; begin it with begin_new_skill first")
+    device = policy.query_fingerprint.device
+    frames = {k: v.to(device) if isinstance(v, Tensor) else v for k, v in frames.items()}
+    n = frames[ACTION].shape[0]
+    queries = policy.encode_query(frames["task"])
+    active = policy.kvm_active_skills()
+    cfg = policy.config.kvm
+    with torch.no_grad():
+        c_raw = policy.kvm.raw_context(frames[policy.config.context_key], queries)
+        v = policy.kvm.score(c_raw, policy.n_skills, active)
+    grad_flags = [p.requires_grad for p in policy.backbone.parameters()]
+    was_training = policy.training
+    policy.backbone.requires_grad_(False)
+    policy.eval()
+    optimizer = torch.optim.Adam(params, lr=lr)
+    lo, hi = skill * pool.per_task, (skill + 1) * pool.per_task
+    batch = min(32, n)
+    last: dict[str, float] = {}
+    try:
+        with torch.enable_grad(), torch.inference_mode(False):
+            for _ in range(steps):
+                idx = torch.randperm(n, device=device)[:batch]
+                sub = {k: v_[idx] for k, v_ in frames.items() if isinstance(v_, Tensor)}
+                alphas = pool.component_alphas(queries[idx])
+                weights = fuse_weights(
+                    v[idx], pool.relevance_from_alphas(alphas).detach(), cfg.fusion_renormalize, cfg.fusion_eps
+                )
+                pred = policy._decode(sub, alphas, weights)
+                valid = (~sub[ACTION_PAD]).to(pred.dtype).unsqueeze(-1)
+                l1 = ((pred - sub[ACTION]).abs() * valid).sum() / (valid.sum() * pred.shape[-1]).clamp_min(1)
+                key = (1 - alphas[..., lo:hi]).mean()
+                if other_queries is not None and len(other_queries):
+                    other = pool.component_alphas(other_queries)[..., lo:hi]
+                    key = key + other.clamp_min(0).mean()
+                loss = l1 + key_weight * key
+                optimizer.zero_grad()
+                loss.backward()
+                optimizer.step()
+                last = {"focused_l1": float(l1.detach()), "focused_key": float(key.detach())}
+    finally:
+        for p, flag in zip(policy.backbone.parameters(), grad_flags, strict=True):
+            p.requires_grad_(flag)
+        optimizer.zero_grad(set_to_none=True)
+        policy.train(was_training)
+    return last
+
+
+# ---------------------------------------------------------------------------- feedback
+def _stack_used(trace: KvmTrace, n_skills: int) -> tuple[Tensor, Tensor, Tensor]:
+    """(validity, skill weights, intervention) per step [T, S] as they were in force during the attempt."""
+    t_len = len(trace)
+    v = torch.ones(t_len, n_skills)
+    w = torch.ones(t_len, n_skills)
+    inter = torch.zeros(t_len, n_skills, dtype=torch.bool)
+    for t, tele in enumerate(trace.telemetry):
+        if tele is None:
+            continue
+        s = min(n_skills, tele.validity.shape[-1])
+        v[t, :s] = tele.validity[0, :s].cpu()
+        w[t, :s] = tele.skill_weight[0, :s].cpu()
+        inter[t, :s] = tele.intervention[0, :s].cpu()
+    return v, w, inter
+
+
+class _Similarity:
+    """Centred cosine similarity of context codes to a hypothesis's contexts (its prototype and negatives)."""
+
+    def __init__(self, kvm: Any) -> None:
+        self.kvm = kvm
+        with torch.no_grad():
+            ref = kvm.gate.window if len(kvm.gate.window) else kvm.safe_offline
+            idx = ref.filled()
+            self.center = kvm.encode(ref.data[idx])[0].mean(0) if len(idx) else None
+
+    @torch.no_grad()
+    def __call__(self, mu: Tensor, hypothesis_id: int) -> Tensor:
+        kvm = self.kvm
+        table = kvm.hypotheses
+        rows = [table.prototype[table.row(hypothesis_id)].unsqueeze(0)]
+        tagged = (kvm.fail_online.tag == hypothesis_id) & (kvm.fail_online.stamp >= 0)
+        rows.append(kvm.fail_online.data[tagged])
+        mu_h = kvm.encode(torch.cat(rows))[0]
+        center = self.center if self.center is not None else mu_h.mean(0)
+        sims = F.normalize(mu - center, dim=-1) @ F.normalize(mu_h - center, dim=-1).T
+        return sims.amax(-1) >= kvm.config.similarity
+
+
+def apply_feedback(
+    policy: "CodaKvmPolicy",
+    outcome: str,
+    trace: KvmTrace,
+    demonstration: dict[str, Any] | None = None,
+    gradient_steps: int | None = None,
+    task: str | None = None,
+) -> dict[str, Any]:
+    if outcome not in OUTCOMES:
+        raise ValueError(f"outcome must be one of {OUTCOMES}, got {outcome!r}")
+    if len(trace) == 0:
+        raise ValueError("the trace is empty: run an attempt with select_action (record_trace=True) first")
+    if trace.batch_size != 1:
+        raise ValueError(f"feedback takes one environment's trace, got batch size {trace.batch_size}: use .episode(b)")
+    if gradient_steps is not None and gradient_steps < 0:
+        raise ValueError(f"gradient_steps must be >= 0, got {gradient_steps}")
+    cfg = policy.config.kvm
+    kvm = policy.kvm
+    failed = outcome != "success"
+    steps = gradient_steps if gradient_steps is not None else (cfg.feedback_steps if failed else 0)
+    device = policy.query_fingerprint.device
+    n_skills = policy.n_skills
+    active = policy.kvm_active_skills()
+
+    tasks = [t[0] for t in trace.tasks]
+    with torch.no_grad():
+        query = policy.encode_query(tasks)
+        c_raw = kvm.raw_context(torch.cat(trace.contexts).to(device), query)
+        alphas = policy.pool.skill_relevance(query)
+        mu, sigma2, _ = kvm.encode(c_raw)
+        tau = kvm.threshold()
+    v_used, w_used, _ = _stack_used(trace, n_skills)
+    v_used, w_used = v_used.to(device), w_used.to(device)
+    relevance = normalised_relevance(alphas, active)
+    candidate = active.unsqueeze(0) & (relevance >= cfg.candidate_min_alpha)
+    intervention = candidate & (v_used < cfg.tau_v)
+    share = (w_used * alphas).abs()
+    dominant = share.argmax(-1)
+
+    task_name = task or tasks[0]
+    kvm.metabolism.record(task_name, candidate.any(0), failed, intervention.any(0))
+    report: dict[str, Any] = {
+        "outcome": outcome,
+        "task": task_name,
+        "steps": len(trace),
+        "gate_open_steps": int((sigma2 > tau).sum()),
+        "intervention_steps": int(intervention.any(-1).sum()),
+        "gradient_steps": steps,
+        "hypothesis": None,
+        "interventions": [],
+        "confirmed": [],
+        "new_skill": None,
+    }
+    similarity = _Similarity(kvm)
+
+    if failed:
+        k = cfg.fail_context_steps
+        culprit = culprit_skill(w_used, alphas, k)
+        context = sigma2 > tau
+        context[-k:] = True
+        hypothesis_id = None
+        for h in kvm.hypotheses.ids(skill=culprit):
+            if bool(similarity(mu[context], h).any()):
+                hypothesis_id = h
+                break
+        suppressed = bool(intervention[context, culprit].any())
+        if hypothesis_id is None:
+            hypothesis_id = kvm.hypotheses.open(culprit, c_raw[-1])
+        else:
+            kvm.hypotheses.record_failure(hypothesis_id, suppressed)
+        permanent = kvm.hypotheses.is_confirmed(hypothesis_id)
+        fail_c = [c_raw[context]]
+        kvm.add_fail(c_raw[context], torch.full((int(context.sum()),), culprit), hypothesis_id, permanent)
+        safe_c: list[Tensor] = []
+        safe_s: list[Tensor] = []
+        demo_skill = None
+        if demonstration is not None:
+            frames = _demo_frames(policy, demonstration)
+            with torch.no_grad():
+                d_query = policy.encode_query(frames["task"])
+                d_raw = kvm.raw_context(frames[policy.config.context_key].to(device), d_query)
+                _, d_sigma2, _ = kvm.encode(d_raw)
+                d_rel = normalised_relevance(policy.pool.skill_relevance(d_query), active)
+            demo_skill = _demo_skill(policy, demonstration.get("skill"), d_rel, culprit, active)
+            if demo_skill is not None:
+                skills = torch.full((len(d_raw),), demo_skill)
+                kvm.add_safe(d_raw, skills, routine=False, demo=True)
+                safe_c.append(d_raw)
+                safe_s.append(skills.to(device))
+            unfamiliar = d_sigma2 > tau
+            if bool(unfamiliar.any()):
+                kvm.add_fail(d_raw[unfamiliar], torch.full((int(unfamiliar.sum()),), culprit), hypothesis_id, permanent)
+                fail_c.append(d_raw[unfamiliar])
+        fails = torch.cat(fail_c)
+        new_fail = (fails, torch.full((len(fails),), culprit, device=device))
+        new_safe = (torch.cat(safe_c), torch.cat(safe_s)) if safe_c else (c_raw[:0], dominant[:0])
+        metrics = kvm.train_online(steps, active, new_safe, new_fail) if steps else {}
+        report.update(
+            culprit=culprit,
+            hypothesis=kvm.hypotheses.info(hypothesis_id),
+            negatives_added=len(fails),
+            positives_added=len(new_safe[0]),
+            demo_skill=demo_skill,
+            suppressed_at_failure=suppressed,
+            kvm_metrics=metrics,
+        )
+    else:
+        routine = not bool(intervention.any())
+        kvm.add_safe(c_raw, dominant, routine=routine)
+        report["routine"] = routine
+        new_skill_seed: list[tuple[int, int]] = []
+        for h in kvm.hypotheses.ids(state=OPEN):
+            info = kvm.hypotheses.info(h)
+            i = info["skill"]
+            if i >= n_skills or not bool(intervention[:, i].any()):
+                continue
+            steps_i = torch.nonzero(intervention[:, i]).flatten()
+            similar = similarity(mu[steps_i], h)
+            if not bool(similar.any()):
+                continue
+            matched = steps_i[similar]
+            necessary = bool(relevance[matched, i].max() > cfg.tau_high)
+            confirmed = kvm.hypotheses.record_intervention(h, necessary)
+            report["interventions"].append({"hypothesis": h, "skill": i, "necessary": necessary, "steps": len(matched)})
+            if confirmed:
+                n_perm = kvm.make_permanent(h)
+                gap = knowledge_gap(relevance[matched], i, active, cfg.gap_alpha)
+                report["confirmed"].append({"hypothesis": h, "skill": i, "permanent_negatives": n_perm, "gap": gap})
+                if gap:
+                    new_skill_seed.append((h, i))
+        metrics = {}
+        if new_skill_seed:
+            h, culprit = new_skill_seed[0]
+            report["new_skill"] = _create_skill(policy, h, culprit, task_name, trace, demonstration, steps)
+        elif steps:
+            metrics = kvm.train_online(steps, active, (c_raw, dominant), (c_raw[:0], dominant[:0]))
+        report["kvm_metrics"] = metrics
+    report["pruned"] = kvm.metabolism.check_prune(policy.n_skills)
+    report["fcrnc"] = kvm.metabolism.fcrnc()[: policy.n_skills].tolist()
+    report["srnc"] = kvm.metabolism.srnc()[: policy.n_skills].tolist()
+    return report
+
+
+def _demo_skill(
+    policy: "CodaKvmPolicy", name: str | None, relevance: Tensor, culprit: int, active: Tensor
+) -> int | None:
+    """The policy skill a demonstration shows: by name, else the most relevant active alternative."""
+    if name is not None:
+        for s in policy.skills:
+            if s.name == name:
+                return s.index
+    alternatives = active.clone()
+    alternatives[culprit] = False
+    if not bool(alternatives.any()):
+        return None
+    mean = relevance.mean(0).masked_fill(~alternatives, float("-inf"))
+    return int(mean.argmax())
+
+
+def _create_skill(
+    policy: "CodaKvmPolicy",
+    hypothesis_id: int,
+    culprit: int,
+    task: str,
+    trace: KvmTrace,
+    demonstration: dict[str, Any] | None,
+    steps: int,
+) -> dict[str, Any] | None:
+    """Knowledge gap: a new skill seeded from the successful interaction (and the demonstration)."""
+    cfg = policy.config.kvm
+    kvm = policy.kvm
+    if policy.n_skills >= policy.config.n_tasks:
+        return {"created": False, "reason": f"the prompt pool is full ({policy.config.n_tasks} skills)"}
+    parts = [f for f in (_trace_frames(policy, trace),) if f is not None]
+    if demonstration is not None:
+        parts.append(_demo_frames(policy, demonstration))
+    if not parts:
+        return {"created": False, "reason": "no seed observations (trace_observations=False and no demonstration)"}
+    frames = _cat_frames(parts)
+    names = {s.name for s in policy.skills}
+    n = policy.n_skills
+    while f"kvm_skill_{n}" in names:
+        n += 1
+    name = f"kvm_skill_{n}"
+    index = policy.begin_new_skill(name, f"created by the KVM: '{policy.skills[culprit].name}' risky on '{task}'")
+    kvm.hypotheses.mark_gap(hypothesis_id, index)
+    device = policy.query_fingerprint.device
+    with torch.no_grad():
+        query = policy.encode_query(frames["task"])
+        seed = kvm.raw_context(frames[policy.config.context_key].to(device), query)
+    skills = torch.full((len(seed),), index)
+    kvm.add_safe(seed, skills, routine=False, demo=True)
+    tagged = (kvm.fail_online.tag == hypothesis_id) & (kvm.fail_online.stamp >= 0)
+    fails = kvm.fail_online.data[tagged]
+    active = policy.kvm_active_skills()
+    metrics = kvm.train_online(
+        max(steps, cfg.feedback_steps), active, (seed, skills.to(device)), (fails, torch.full((len(fails),), culprit))
+    )
+    seed_queries = set(frames["task"])
+    known = kvm.safe_offline.data[kvm.safe_offline.filled()][:, kvm.encoder.sensed_dim :] / kvm.encoder.query_scale
+    other = known[(F.normalize(known, dim=-1) @ query.T).amax(-1) < 0.999] if len(known) else known
+    focused = focused_finetune(
+        policy, frames, index, cfg.focused_steps, cfg.focused_lr, cfg.focused_key_weight, torch.unique(other, dim=0)
+    )
+    return {
+        "created": True,
+        "index": index,
+        "name": name,
+        "seed_frames": len(seed),
+        "seed_tasks": sorted(seed_queries),
+        "kvm_metrics": metrics,
+        **focused,
+    }

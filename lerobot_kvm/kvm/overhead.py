@@ -1,0 +1,85 @@
+"""Per-step latency of the policy with the KVM off, on with the gate closed, and on with the gate forced open.
+
+All three modes run in one process on the same inputs, interleaved in blocks (off, closed, open, off, ...) so
+that load drifts on a shared machine hit every mode alike; the statistic is the median per-call latency.
+
+* model call: one `predict_action_chunk` (query, CODA relevances, KVM assessment, fused prompt, backbone) --
+  the unit the paper's overhead (App. H.2) is about; the acceptance ratios are taken here.
+* control step: one `select_action` averaged over a full action chunk (one model call per `n_action_steps`
+  steps, plus the KVM's per-step trace recording).
+"""
+
+import statistics
+import time
+from typing import Any
+
+import torch
+
+MODES = ("off", "closed", "open")
+
+
+def _set_mode(policy: Any, mode: str) -> None:
+    policy.config.kvm.enabled = mode != "off"
+    policy.kvm.set_gate_override(None if mode == "off" else mode)
+
+
+def _time_calls(fn: Any, n: int) -> list[float]:
+    out = []
+    for _ in range(n):
+        t = time.perf_counter()
+        fn()
+        out.append(time.perf_counter() - t)
+    return out
+
+
+@torch.no_grad()
+def measure_overhead(
+    policy: Any, batch: dict[str, Any], steps: int = 200, warmup: int = 10, block: int = 10
+) -> dict[str, Any]:
+    """Latencies (ms) and ratios to the KVM-off step time; restores the policy's KVM settings afterwards."""
+    if steps < block:
+        raise ValueError(f"steps ({steps}) must be >= block ({block})")
+    enabled, override = policy.config.kvm.enabled, policy.kvm.gate_override
+    policy.eval()
+    calls: dict[str, list[float]] = {m: [] for m in MODES}
+    control: dict[str, list[float]] = {m: [] for m in MODES}
+    n_action = policy.config.n_action_steps
+    gate_open: dict[str, bool] = {}
+    try:
+        for mode in MODES:
+            _set_mode(policy, mode)
+            for _ in range(warmup):
+                policy.predict_action_chunk(batch)
+            telemetry = policy.kvm_telemetry
+            gate_open[mode] = bool(telemetry.gate.any()) if (mode != "off" and telemetry is not None) else False
+
+        def chunk_of_steps() -> None:
+            policy.reset()
+            for _ in range(n_action):
+                policy.select_action(batch)
+
+        for _ in range(steps // block):
+            for mode in MODES:
+                _set_mode(policy, mode)
+                calls[mode] += _time_calls(lambda: policy.predict_action_chunk(batch), block)
+                control[mode] += [t / n_action for t in _time_calls(chunk_of_steps, max(1, block // n_action))]
+    finally:
+        policy.config.kvm.enabled = enabled
+        policy.kvm.set_gate_override(override)
+        policy.reset()
+    med = {m: statistics.median(calls[m]) * 1e3 for m in MODES}
+    ctl = {m: statistics.median(control[m]) * 1e3 for m in MODES}
+    return {
+        "model_call_ms": med,
+        "control_step_ms": ctl,
+        "ratio_gate_closed": med["closed"] / med["off"],
+        "ratio_gate_open": med["open"] / med["off"],
+        "control_step_ratio_gate_closed": ctl["closed"] / ctl["off"],
+        "control_step_ratio_gate_open": ctl["open"] / ctl["off"],
+        "gate_open_check": gate_open,
+        "calls_per_mode": len(calls["off"]),
+        "n_skills": policy.n_skills,
+        "batch_size": int(next(v for v in batch.values() if isinstance(v, torch.Tensor)).shape[0]),
+        "threads": torch.get_num_threads(),
+        "device": str(policy.query_fingerprint.device),
+    }

@@ -1,0 +1,389 @@
+"""The Knowledge Validity Module: E_c, smart gate, energy model, memory, attribution and metabolism in one
+`nn.Module` (a submodule of the policy, so all of it is in `model.safetensors`).
+
+`assess()` is Algorithm 1's steps 7-21 for a batch of control steps: encode the context, test the gate,
+score every skill in the pool (candidates and the rest) with the energy model when the gate is open, turn the
+energies into validities (eq. 2) and the validities into skill weights for the fused prompt (eq. 3).
+`offline_step()` is the learning that runs inside `forward()` during `lerobot-train`; `train_online()` is the
+update of the feedback API (see `kvm.online`).
+"""
+
+from collections import deque
+
+import torch
+from torch import Tensor, nn
+
+from .attribution import HypothesisTable
+from .configuration import KvmConfig
+from .context_encoder import ContextEncoder
+from .energy import EnergyModel, JointFeature, RiskClassifier, validity
+from .fusion import fuse_weights
+from .gate import SmartGate
+from .losses import bce_loss, contrastive_loss, energy_loss, total_loss
+from .memory import DEMO, PERMANENT, ROUTINE, SYNTHETIC, EpisodeLabels, SampleBuffer
+from .metabolism import SkillMetabolism
+from .telemetry import KvmStepTelemetry
+
+GATE_OVERRIDES = (None, "open", "closed")
+
+
+class KnowledgeValidityModule(nn.Module):
+    def __init__(self, config: KvmConfig, sensed_dim: int, query_dim: int, max_skills: int) -> None:
+        super().__init__()
+        self.config = config
+        self.max_skills = max_skills
+        self.encoder = ContextEncoder(
+            sensed_dim, query_dim, config.encoder_hidden, config.latent_dim, config.use_query, config.query_weight
+        )
+        raw_dim = self.encoder.raw_dim
+        self.joint = JointFeature(config.latent_dim, max_skills, config.skill_embed_dim, config.feature_dim)
+        self.energy = EnergyModel(config.feature_dim, config.energy_hidden, config.energy_max)
+        self.classifier = RiskClassifier(config.feature_dim, config.energy_hidden)
+        self.gate = SmartGate(config.gate_window, raw_dim, config.gate_k, config.gate_min_count)
+        self.safe_offline = SampleBuffer(config.safe_offline_capacity, raw_dim, "reservoir")
+        self.safe_online = SampleBuffer(config.safe_online_capacity, raw_dim, "ring")
+        self.fail_offline = SampleBuffer(config.fail_offline_capacity, raw_dim, "reservoir")
+        self.fail_online = SampleBuffer(config.fail_online_capacity, raw_dim, "protected")
+        self.hypotheses = HypothesisTable(config.hypothesis_capacity, raw_dim, config.persistence, config.tau_high)
+        self.metabolism = SkillMetabolism(
+            max_skills, config.metabolism_window, config.prune_threshold, config.prune_min_interactions
+        )
+        self.labels = EpisodeLabels(config.label_capacity)
+        # Runtime only (never saved): a forced gate state for overhead measurement and the online sigma window.
+        self.gate_override: str | None = None
+        self._sigma_history: deque[Tensor] = deque(maxlen=config.context_window)
+
+    # ----------------------------------------------------------------- runtime
+    def train(self, mode: bool = True) -> "KnowledgeValidityModule":
+        self.gate.stale = True  # the encoder may change (or have changed) under training
+        return super().train(mode)
+
+    def reset_runtime(self) -> None:
+        self._sigma_history.clear()
+
+    def set_gate_override(self, mode: str | None) -> None:
+        if mode not in GATE_OVERRIDES:
+            raise ValueError(f"gate override must be one of {GATE_OVERRIDES}, got {mode!r}")
+        self.gate_override = mode
+
+    def learnable_parameters(self) -> list[nn.Parameter]:
+        return [
+            *self.encoder.parameters(),
+            *self.joint.parameters(),
+            *self.energy.parameters(),
+            *self.classifier.parameters(),
+        ]
+
+    # ----------------------------------------------------------------- scoring
+    def raw_context(self, sensed: Tensor, query: Tensor | None) -> Tensor:
+        return self.encoder.raw_context(sensed, query)
+
+    def encode(self, c_raw: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """(mu [B, L], sigma2 [B], valid [B]); non-finite rows are zeroed before encoding and flagged (a
+        non-finite code makes sigma2 non-finite too, so one test covers context, code and residual)."""
+        finite = torch.isfinite(c_raw).all(-1)
+        if not bool(finite.all()):
+            c_raw = torch.where(finite.unsqueeze(-1), c_raw, torch.zeros_like(c_raw))
+        mu, sigma2 = self.encoder(c_raw)
+        return mu, sigma2, finite & torch.isfinite(sigma2)
+
+    def risk_energy(self, h: Tensor, risk_model: str | None = None) -> Tensor:
+        """Energy of features h [..., F] under the configured risk model (energy or BCE energy-equivalent)."""
+        if (risk_model or self.config.risk_model) == "bce":
+            return RiskClassifier.energy_equivalent(self.classifier(h), self.config.gamma, self.config.l0)
+        return self.energy(h)
+
+    def skill_energies(self, mu: Tensor, n_skills: int, risk_model: str | None = None) -> Tensor:
+        """E [B, S] of every context with every skill begun in the pool."""
+        skills = torch.arange(n_skills, device=mu.device)
+        return self.risk_energy(self.joint.all_skills(mu, skills), risk_model)
+
+    def validity_of(self, c_raw: Tensor, n_skills: int, risk_model: str | None = None) -> Tensor:
+        """v [B, S] with the gate bypassed (the energy model's judgement everywhere); invalid rows -> 0."""
+        mu, _, valid = self.encode(c_raw)
+        energy = self.skill_energies(mu, n_skills, risk_model)
+        v = validity(energy, self.config.gamma, self.config.l0)
+        ok = valid.unsqueeze(-1) & torch.isfinite(energy)
+        return torch.where(ok, v, torch.zeros_like(v))
+
+    @torch.no_grad()
+    def score(self, c_raw: Tensor, n_skills: int, active: Tensor, use_gate: bool = True) -> Tensor:
+        """v [N, S] as `assess` would give it for these contexts (gate, fail-safe, pruning), without fusion."""
+        mu, sigma2, valid = self.encode(c_raw)
+        energy = self.skill_energies(mu, n_skills)
+        v = validity(energy, self.config.gamma, self.config.l0)
+        if use_gate and self.config.smart_gate:
+            v = torch.where((sigma2 > self.threshold()).unsqueeze(-1), v, torch.ones_like(v))
+        ok = valid.unsqueeze(-1) & torch.isfinite(energy) & active.unsqueeze(0)
+        return torch.where(ok, v, torch.zeros_like(v))
+
+    def threshold(self) -> Tensor:
+        return self.gate.threshold(self.encoder)
+
+    def assess(
+        self, sensed: Tensor, query: Tensor | None, alphas: Tensor, active: Tensor
+    ) -> tuple[Tensor | None, KvmStepTelemetry]:
+        """Skill weights for the pool and the step's telemetry (Algorithm 1, lines 7-21).
+
+        sensed [B, C] normalized context, query [B, D_q], alphas [B, S] per-skill relevance, active [S] bool.
+        The weights are None when nothing is re-weighted (gate closed everywhere, every context valid, no skill
+        pruned): the pool then computes the plain CODA prompt, and the gate-closed path costs E_c and the gate
+        test only.
+        """
+        cfg = self.config
+        c_raw = self.raw_context(sensed, query)
+        mu, sigma2, valid = self.encode(c_raw)
+        if self._sigma_history and self._sigma_history[-1].shape != sigma2.shape:
+            self._sigma_history.clear()
+        self._sigma_history.append(sigma2)
+        sigma2_gate = sigma2 if len(self._sigma_history) == 1 else torch.stack(list(self._sigma_history)).mean(0)
+        tau = self.threshold()
+        if self.gate_override == "open" or not cfg.smart_gate:
+            gate = torch.ones_like(valid)
+        elif self.gate_override == "closed":
+            gate = torch.zeros_like(valid)
+        else:
+            gate = sigma2_gate > tau
+        gate = gate | ~valid
+        energy = torch.full_like(alphas, float("nan"))
+        fast = cfg.force_validity is None and not bool(gate.any()) and bool(active.all())
+        if fast:  # gate closed everywhere: v = 1, plain CODA prompt
+            v = torch.ones_like(alphas)
+            weights = None
+            invalid = torch.zeros_like(alphas, dtype=torch.bool)
+        else:
+            if cfg.force_validity is not None:
+                v = torch.full_like(alphas, cfg.force_validity)
+                invalid = ~valid.unsqueeze(-1).expand_as(v)
+            else:
+                e = self.skill_energies(mu, alphas.shape[1])
+                energy = torch.where(gate.unsqueeze(-1), e, energy)
+                v = torch.where(gate.unsqueeze(-1), validity(e, cfg.gamma, cfg.l0), torch.ones_like(e))
+                invalid = ~valid.unsqueeze(-1) | (gate.unsqueeze(-1) & ~torch.isfinite(e))
+            v = torch.where(invalid | ~active.unsqueeze(0), torch.zeros_like(v), v)
+            weights = fuse_weights(v, alphas, cfg.fusion_renormalize, cfg.fusion_eps)
+        telemetry = KvmStepTelemetry(
+            sigma2=sigma2,
+            sigma2_gate=sigma2_gate,
+            tau=tau.clone(),
+            gate=gate,
+            alpha=alphas,
+            energy=energy,
+            validity=v,
+            skill_weight=torch.ones_like(alphas) if weights is None else weights,
+            invalid=invalid,
+            active=active,
+            tau_v=cfg.tau_v,
+            candidate_min_alpha=cfg.candidate_min_alpha,
+        )
+        return weights, telemetry
+
+    # ----------------------------------------------------------------- learning
+    def _cross_skill(self, c_raw: Tensor, skills: Tensor, active: Tensor) -> tuple[Tensor, Tensor]:
+        """(context of skill i, another active skill j != i): negatives that are not benchmark shifts."""
+        active_idx = torch.nonzero(active).flatten()
+        n = len(active_idx)
+        if n < 2 or not len(skills):
+            return c_raw[:0], skills[:0]
+        position = torch.full((self.max_skills,), -1, dtype=torch.int64, device=skills.device)
+        position[active_idx] = torch.arange(n, device=skills.device)
+        pos = position[skills]
+        keep = pos >= 0
+        offset = torch.randint(1, n, (int(keep.sum()),), device=skills.device)
+        other = active_idx[(pos[keep] + offset) % n]
+        return c_raw[keep], other
+
+    def _synthetic(self, c_raw: Tensor, skills: Tensor) -> tuple[Tensor, Tensor]:
+        """Off-manifold perturbations of the sensed part (the query part is kept)."""
+        if not self.config.synthetic_negatives or not len(skills):
+            return c_raw[:0], skills[:0]
+        noisy = c_raw.clone()
+        sensed = self.encoder.sensed_dim
+        noisy[:, :sensed] += self.config.synthetic_noise * torch.randn_like(noisy[:, :sensed])
+        return noisy, skills
+
+    def _replay(self, buffer: SampleBuffer, n: int, where: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+        idx = buffer.sample(n, where)
+        return buffer.data[idx], buffer.skill[idx], buffer.flags[idx]
+
+    def loss_terms(
+        self, safe_c: Tensor, safe_s: Tensor, routine: Tensor, fail_c: Tensor, fail_s: Tensor
+    ) -> tuple[Tensor, dict[str, Tensor]]:
+        """recon + L_contrast + lambda * L_energy + BCE on one set of safe and hazardous (context, skill) pairs."""
+        cfg = self.config
+        mu_s, sigma2_s, _ = self.encode(safe_c)
+        h_s = self.joint(mu_s, safe_s)
+        e_s = self.energy(h_s)
+        zero = safe_c.new_zeros(())
+        recon = sigma2_s[routine].mean() if bool(routine.any()) else zero
+        if len(fail_c):
+            mu_f, _, _ = self.encode(fail_c)
+            h_f = self.joint(mu_f, fail_s)
+            e_f = self.energy(h_f)
+        else:
+            h_f = h_s[:0]
+            e_f = e_s[:0]
+        e_loss = energy_loss(e_s, e_f, cfg.energy_margin, cfg.energy_floor)
+        contrast = zero
+        if len(h_s) and len(h_f):
+            positive = h_s[self._same_skill_partner(safe_s)]
+            negative = h_f[torch.randint(len(h_f), (len(h_s),), device=h_f.device)]
+            contrast = contrastive_loss(h_s, positive, negative, cfg.contrast_margin)
+        bce = bce_loss(self.classifier(h_s.detach()), self.classifier(h_f.detach()))
+        loss = cfg.recon_weight * recon + total_loss(contrast, e_loss, cfg.energy_weight) + cfg.bce_weight * bce
+        metrics = {
+            "loss": loss,
+            "recon": recon,
+            "contrast": contrast,
+            "energy_loss": e_loss,
+            "bce": bce,
+            "energy_safe": e_s.mean() if len(e_s) else zero,
+            "energy_fail": e_f.mean() if len(e_f) else zero,
+            "v_safe": validity(e_s, cfg.gamma, cfg.l0).mean() if len(e_s) else zero,
+            "v_fail": validity(e_f, cfg.gamma, cfg.l0).mean() if len(e_f) else zero,
+            "n_fail": torch.tensor(float(len(e_f))),
+        }
+        return loss, metrics
+
+    @staticmethod
+    def _same_skill_partner(skills: Tensor) -> Tensor:
+        """For each row, the index of a random row with the same skill (itself if it is alone)."""
+        partner = torch.arange(len(skills), device=skills.device)
+        for s in torch.unique(skills).tolist():
+            idx = torch.nonzero(skills == s).flatten()
+            partner[idx] = idx[torch.randperm(len(idx), device=skills.device)]
+        return partner
+
+    def negatives_for(self, safe_c: Tensor, safe_s: Tensor, active: Tensor) -> tuple[Tensor, Tensor]:
+        """Non-benchmark negatives derived from safe samples: cross-skill pairs and synthetic perturbations."""
+        parts_c, parts_s = [], []
+        if self.config.cross_skill_negatives:
+            c, s = self._cross_skill(safe_c, safe_s, active)
+            parts_c.append(c)
+            parts_s.append(s)
+        c, s = self._synthetic(safe_c, safe_s)
+        parts_c.append(c)
+        parts_s.append(s)
+        return torch.cat(parts_c), torch.cat(parts_s)
+
+    def offline_step(
+        self, c_raw: Tensor, skills: Tensor, outcome: Tensor, usable: Tensor, active: Tensor
+    ) -> tuple[Tensor, dict[str, float]]:
+        """One offline learning step on dataset frames (inside `forward()`); also fills the memories.
+
+        Safe = frames of successful episodes (of the skill that produced them); hazardous = frames of recorded
+        failure episodes (never a benchmark-shifted variant: those are not `usable`), the same contexts paired
+        with other skills, and synthetic off-manifold perturbations.
+        """
+        n = self.config.replay_size
+        safe = usable & (outcome == 0)
+        fail = usable & (outcome > 0)
+        with torch.no_grad():
+            self.gate.push(c_raw[safe].detach())
+            self.safe_offline.add(c_raw[safe].detach(), skills[safe], ROUTINE)
+            self.fail_offline.add(c_raw[fail].detach(), skills[fail])
+        rc, rs, rf = self._replay(self.safe_offline, n)
+        oc, os_, of = self._replay(self.safe_online, n if len(self.safe_online) else 0)
+        safe_c = torch.cat([c_raw[safe], rc, oc])
+        safe_s = torch.cat([skills[safe], rs, os_])
+        routine = torch.cat([torch.ones(int(safe.sum()), dtype=torch.int64, device=rf.device), rf, of]) & ROUTINE > 0
+        neg_c, neg_s = self.negatives_for(safe_c, safe_s, active)
+        fc1, fs1, _ = self._replay(self.fail_offline, n if len(self.fail_offline) else 0)
+        fc2, fs2, _ = self._replay(self.fail_online, n if len(self.fail_online) else 0)
+        fail_c = torch.cat([c_raw[fail], fc1, fc2, neg_c])
+        fail_s = torch.cat([skills[fail], fs1, fs2, neg_s])
+        loss, metrics = self.loss_terms(safe_c, safe_s, routine, fail_c, fail_s)
+        with torch.no_grad():
+            tau = self.gate.refresh(self.encoder)[0]
+            _, sigma2_now, _ = self.encode(c_raw[safe]) if bool(safe.any()) else (None, c_raw.new_zeros(0), None)
+        out = {f"kvm_{k}": float(v.detach()) for k, v in metrics.items()}
+        out["kvm_tau"] = float(tau)
+        out["kvm_sigma2"] = float(sigma2_now.mean()) if len(sigma2_now) else 0.0
+        out["kvm_gate_rate"] = float((sigma2_now > tau).float().mean()) if len(sigma2_now) else 0.0
+        return loss, out
+
+    def train_online(
+        self,
+        steps: int,
+        active: Tensor,
+        new_safe: tuple[Tensor, Tensor],
+        new_fail: tuple[Tensor, Tensor],
+        batch: int | None = None,
+        lr: float | None = None,
+    ) -> dict[str, float]:
+        """A fixed budget of gradient steps on the KVM (E_c, join, energy model, classifier).
+
+        Each step mixes the fresh samples of this feedback (half of each side) with replay from the memories,
+        so what was safe stays safe; cross-skill and synthetic negatives are added as offline.
+        """
+        cfg = self.config
+        batch = batch or cfg.feedback_batch
+        half = max(batch // 2, 1)
+        params = self.learnable_parameters()
+        optimizer = torch.optim.Adam(params, lr=lr or cfg.feedback_lr)
+        metrics: dict[str, Tensor] = {}
+        safe_new_c, safe_new_s = new_safe
+        fail_new_c, fail_new_s = new_fail
+        was_training = self.training
+        self.train()
+        with torch.enable_grad(), torch.inference_mode(False):
+            for _ in range(steps):
+                parts_c, parts_s, parts_r = [], [], []
+                if len(safe_new_c):
+                    i = torch.randint(len(safe_new_c), (half,), device=safe_new_c.device)
+                    parts_c.append(safe_new_c[i])
+                    parts_s.append(safe_new_s[i])
+                    parts_r.append(torch.zeros(half, dtype=torch.bool, device=safe_new_c.device))
+                for buffer in (self.safe_offline, self.safe_online):
+                    if len(buffer):
+                        c, s, f = self._replay(buffer, half // 2 if len(safe_new_c) else half)
+                        parts_c.append(c)
+                        parts_s.append(s)
+                        parts_r.append((f & ROUTINE) > 0)
+                if not parts_c:
+                    break
+                safe_c, safe_s, routine = torch.cat(parts_c), torch.cat(parts_s), torch.cat(parts_r)
+                fparts_c, fparts_s = [], []
+                if len(fail_new_c):
+                    i = torch.randint(len(fail_new_c), (half,), device=fail_new_c.device)
+                    fparts_c.append(fail_new_c[i])
+                    fparts_s.append(fail_new_s[i])
+                for buffer in (self.fail_online, self.fail_offline):
+                    if len(buffer):
+                        c, s, _ = self._replay(buffer, half // 2)
+                        fparts_c.append(c)
+                        fparts_s.append(s)
+                neg_c, neg_s = self.negatives_for(safe_c, safe_s, active)
+                fparts_c.append(neg_c)
+                fparts_s.append(neg_s)
+                loss, metrics = self.loss_terms(safe_c, safe_s, routine, torch.cat(fparts_c), torch.cat(fparts_s))
+                optimizer.zero_grad()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(params, 10.0)
+                optimizer.step()
+        optimizer.zero_grad(set_to_none=True)
+        self.train(was_training)
+        self.gate.stale = True
+        return {k: float(v.detach()) for k, v in metrics.items()}
+
+    # ----------------------------------------------------------------- helpers for the online API
+    def add_safe(self, c_raw: Tensor, skills: Tensor, routine: bool, demo: bool = False) -> None:
+        flags = (ROUTINE if routine else 0) | (DEMO if demo else 0)
+        self.safe_online.add(c_raw, skills, flags)
+        if routine:
+            self.gate.push(c_raw)
+
+    def add_fail(self, c_raw: Tensor, skills: Tensor, hypothesis_id: int, permanent: bool = False) -> None:
+        self.fail_online.add(c_raw, skills, PERMANENT if permanent else 0, hypothesis_id)
+
+    @torch.no_grad()
+    def make_permanent(self, hypothesis_id: int) -> int:
+        mask = (self.fail_online.tag == hypothesis_id) & (self.fail_online.stamp >= 0)
+        self.fail_online.set_flags(mask, PERMANENT)
+        return int(mask.sum())
+
+    def n_permanent(self) -> int:
+        return int(((self.fail_online.flags & PERMANENT) > 0).sum())
+
+
+__all__ = ["KnowledgeValidityModule", "SYNTHETIC"]

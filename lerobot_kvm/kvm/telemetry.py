@@ -1,0 +1,133 @@
+"""What the KVM decided, per control step (`KvmStepTelemetry`) and per attempt (`KvmTrace`).
+
+Every tensor is detached; shapes use B (batch of environments) and S (skills begun in the pool).
+"""
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from torch import Tensor
+
+
+@dataclass
+class KvmStepTelemetry:
+    sigma2: Tensor  # [B] sigma_c^2 of the current frame
+    sigma2_gate: Tensor  # [B] what the gate compared (mean over the last `context_window` frames)
+    tau: Tensor  # [] tau_adaptive (eq. 1); -inf while there are no statistics yet
+    gate: Tensor  # [B] bool: full assessment ran
+    alpha: Tensor  # [B, S] per-skill CODA relevance alpha_i
+    energy: Tensor  # [B, S] E_theta(h_i) (or the classifier's energy-equivalent); NaN where not assessed
+    validity: Tensor  # [B, S] v_i (1 where the gate was closed, 0 where invalid or pruned)
+    skill_weight: Tensor  # [B, S] weight given to the pool (eq. 3 re-weighting, see kvm.fusion)
+    invalid: Tensor  # [B, S] bool: non-finite context, code or energy -> v_i = 0 (fail-safe)
+    active: Tensor  # [S] bool: skills not pruned
+    tau_v: float = 0.1
+    candidate_min_alpha: float = 0.2
+
+    # Derived values are computed on access, so that the control loop only pays for what a caller reads.
+    @property
+    def relevance(self) -> Tensor:
+        """[B, S] normalised relevance |alpha_i| / max_j |alpha_j| over active skills."""
+        masked = self.alpha.abs() * self.active.to(self.alpha)
+        return masked / masked.amax(-1, keepdim=True).clamp_min(1e-8)
+
+    @property
+    def candidate(self) -> Tensor:
+        """[B, S] bool: proposed by the CL core (active, normalised relevance >= candidate_min_alpha)."""
+        return self.active.unsqueeze(0) & (self.relevance >= self.candidate_min_alpha)
+
+    @property
+    def intervention(self) -> Tensor:
+        """[B, S] bool: a candidate suppressed (v_i < tau_v)."""
+        return self.candidate & (self.validity < self.tau_v)
+
+    @property
+    def decision_weight(self) -> Tensor:
+        """[B, S] w_i = v_i * alpha_i."""
+        return self.validity * self.alpha
+
+    @property
+    def batch_size(self) -> int:
+        return int(self.sigma2.shape[0])
+
+    def row(self, b: int = 0) -> dict[str, Any]:
+        """JSON-friendly values of one environment."""
+
+        def plain(t: Tensor) -> Any:
+            t = t.detach().cpu()
+            if t.dtype == torch.bool:
+                return t.tolist()
+            return [None if not torch.isfinite(x) else float(x) for x in t.reshape(-1)] if t.ndim else float(t)
+
+        return {
+            "sigma2": float(self.sigma2[b]),
+            "sigma2_gate": float(self.sigma2_gate[b]),
+            "tau": float(self.tau),
+            "gate": bool(self.gate[b]),
+            "alpha": plain(self.alpha[b]),
+            "relevance": plain(self.relevance[b]),
+            "candidate": plain(self.candidate[b]),
+            "energy": plain(self.energy[b]),
+            "validity": plain(self.validity[b]),
+            "decision_weight": plain(self.decision_weight[b]),
+            "skill_weight": plain(self.skill_weight[b]),
+            "intervention": plain(self.intervention[b]),
+            "invalid": plain(self.invalid[b]),
+        }
+
+    def select(self, b: int) -> "KvmStepTelemetry":
+        per_row = ("sigma2", "sigma2_gate", "gate", "alpha", "energy", "validity", "skill_weight", "invalid")
+        values = {name: getattr(self, name) for name in self.__dataclass_fields__}
+        return KvmStepTelemetry(**{k: v[b : b + 1] if k in per_row else v for k, v in values.items()})
+
+
+@dataclass
+class KvmTrace:
+    """What the policy recorded during one attempt (since the last `reset()`), per control step."""
+
+    tasks: list[list[str]] = field(default_factory=list)  # [T][B]
+    contexts: list[Tensor] = field(default_factory=list)  # [T] x [B, C] normalized sensed context
+    actions: list[Tensor] = field(default_factory=list)  # [T] x [B, A] normalized action executed
+    telemetry: list[KvmStepTelemetry | None] = field(default_factory=list)  # [T] the assessment in force
+    observations: list[dict[str, Tensor]] = field(default_factory=list)  # [T] policy inputs (optional)
+    truncated: bool = False  # more steps than `trace_capacity` happened; the first ones are kept
+
+    def __len__(self) -> int:
+        return len(self.contexts)
+
+    @property
+    def batch_size(self) -> int:
+        return int(self.contexts[0].shape[0]) if self.contexts else 0
+
+    def episode(self, b: int) -> "KvmTrace":
+        """The trace of environment b alone (batch size 1)."""
+        return KvmTrace(
+            tasks=[[t[b]] for t in self.tasks],
+            contexts=[c[b : b + 1] for c in self.contexts],
+            actions=[a[b : b + 1] for a in self.actions],
+            telemetry=[None if t is None else t.select(b) for t in self.telemetry],
+            observations=[{k: v[b : b + 1] for k, v in o.items()} for o in self.observations],
+            truncated=self.truncated,
+        )
+
+    def head(self, n_steps: int) -> "KvmTrace":
+        """The first n steps (e.g. up to the step where an environment terminated)."""
+        return KvmTrace(
+            tasks=self.tasks[:n_steps],
+            contexts=self.contexts[:n_steps],
+            actions=self.actions[:n_steps],
+            telemetry=self.telemetry[:n_steps],
+            observations=self.observations[:n_steps],
+            truncated=self.truncated,
+        )
+
+    def summary(self) -> dict[str, Any]:
+        """Per-attempt counts: steps, gate openings, interventions (environment 0)."""
+        assessed = [t for t in self.telemetry if t is not None]
+        return {
+            "steps": len(self),
+            "gate_open_steps": sum(int(t.gate[0]) for t in assessed),
+            "intervention_steps": sum(int(t.intervention[0].any()) for t in assessed),
+            "invalid_steps": sum(int(t.invalid[0].any()) for t in assessed),
+        }

@@ -1,0 +1,161 @@
+"""Verification-based attribution (App. D): hypotheses, persistence and necessity, confirmed negatives, knowledge
+gap -> a new skill trained alone; metabolism -> pruning (recoverable)."""
+
+import pytest
+import torch
+
+from lerobot_kvm.kvm.attribution import (
+    CONFIRMED,
+    OPEN,
+    HypothesisTable,
+    culprit_skill,
+    knowledge_gap,
+    normalised_relevance,
+)
+from lerobot_kvm.kvm.memory import PERMANENT
+
+EGG = "pick up the egg"
+
+
+def test_hypothesis_confirms_only_after_n_p_persistent_and_necessary_interventions() -> None:
+    table = HypothesisTable(capacity=4, raw_dim=3, persistence=3, tau_high=0.8)
+    h = table.open(skill=1, prototype=torch.ones(3))
+    assert table.info(h)["state"] == "open" and table.info(h)["failures"] == 1
+    for _ in range(3):  # counter 1..3: not yet above N_p = 3
+        assert not table.record_intervention(h, necessary=True)
+    assert not table.record_intervention(h, necessary=False)  # counter 4 > N_p but not necessary
+    assert table.info(h)["state"] == "open"
+    assert table.record_intervention(h, necessary=True)  # persistent and necessary: confirmed
+    assert table.is_confirmed(h) and table.info(h)["counter"] == 5 and table.info(h)["necessary"] == 4
+    assert not table.record_intervention(h, necessary=True)  # confirms once
+
+
+def test_a_failure_despite_suppression_restarts_persistence() -> None:
+    table = HypothesisTable(capacity=2, raw_dim=3, persistence=3, tau_high=0.8)
+    h = table.open(skill=0, prototype=torch.zeros(3))
+    for _ in range(3):
+        table.record_intervention(h, necessary=True)
+    table.record_failure(h, suppressed=False)  # failed while the skill ran: more evidence, counter kept
+    assert table.info(h)["counter"] == 3 and table.info(h)["failures"] == 2
+    table.record_failure(h, suppressed=True)  # failed although suppressed: the intervention did not help
+    assert table.info(h)["counter"] == 0
+    for _ in range(3):
+        assert not table.record_intervention(h, necessary=True)
+    assert table.record_intervention(h, necessary=True)
+
+
+def test_hypothesis_table_evicts_the_oldest_open_row_when_full() -> None:
+    table = HypothesisTable(capacity=2, raw_dim=1, persistence=0, tau_high=0.8)
+    a = table.open(0, torch.zeros(1))
+    table.record_intervention(a, necessary=True)  # confirmed (counter 1 > 0)
+    b = table.open(1, torch.zeros(1))
+    c = table.open(2, torch.zeros(1))  # evicts b (oldest open), keeps the confirmed a
+    assert sorted(table.ids()) == [a, c] and table.ids(state=CONFIRMED) == [a] and table.ids(state=OPEN) == [c]
+    with pytest.raises(KeyError):
+        table.info(b)
+
+
+def test_culprit_relevance_and_knowledge_gap() -> None:
+    alphas = torch.tensor([[2.0, -1.0, 0.5], [1.0, -3.0, 0.5], [1.0, -3.0, 0.5]])
+    weights = torch.ones(3, 3)
+    assert culprit_skill(weights, alphas, last_k=2) == 1  # largest share over the last two steps
+    assert culprit_skill(weights, alphas, last_k=3) == 1
+    assert culprit_skill(torch.tensor([[1.0, 0.0, 1.0]] * 3), alphas, last_k=3) == 0  # skill 1 was suppressed
+    active = torch.tensor([True, True, False])
+    r = normalised_relevance(alphas, active)
+    torch.testing.assert_close(r[0], torch.tensor([1.0, 0.5, 0.0]))
+    torch.testing.assert_close(r[1], torch.tensor([1 / 3, 1.0, 0.0]))
+    assert knowledge_gap(r[1:], culprit=1, active=active, gap_alpha=0.5)  # alternative 0 stays at 1/3
+    assert not knowledge_gap(r[:1], culprit=1, active=active, gap_alpha=0.5)  # alternative 0 is strong there
+    assert knowledge_gap(r, culprit=0, active=torch.tensor([True, False, False]), gap_alpha=0.5)  # no alternative
+
+
+def _force_suppression(trace, skill: int, value: float = 0.01) -> None:
+    """Make the recorded assessments say the KVM suppressed `skill` at every step."""
+    for tele in {id(t): t for t in trace.telemetry if t is not None}.values():
+        tele.validity[:, skill] = value
+
+
+def test_failure_feedback_forms_a_hypothesis_with_provisional_negatives(make_policy, attempt) -> None:
+    policy = make_policy()
+    trace = attempt(policy, EGG, steps=6, seed=0)
+    report = policy.kvm_feedback("catastrophe", trace, gradient_steps=2)
+    assert report["culprit"] == 0 and report["hypothesis"]["state"] == "open"
+    h = report["hypothesis"]["id"]
+    tagged = (policy.kvm.fail_online.tag == h) & (policy.kvm.fail_online.stamp >= 0)
+    assert int(tagged.sum()) == report["negatives_added"] > 0
+    assert int((policy.kvm.fail_online.flags[tagged] & PERMANENT).sum()) == 0  # provisional
+    assert (policy.kvm.fail_online.skill[tagged] == 0).all()
+    # a second failure in the same context adds evidence to the same hypothesis
+    report = policy.kvm_feedback("failure", attempt(policy, EGG, steps=6, seed=0), gradient_steps=0)
+    assert report["hypothesis"]["id"] == h and report["hypothesis"]["failures"] == 2
+
+
+def test_confirmed_gap_creates_a_new_skill_trained_alone(make_policy, attempt) -> None:
+    policy = make_policy()
+    policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6, seed=0), gradient_steps=2)
+    backbone = {k: v.clone() for k, v in policy.backbone.state_dict().items()}
+    old_skill = {k: v.clone() for k, v in policy.pool.tasks[0].state_dict().items()}
+    reports = []
+    for _ in range(4):  # similar contexts, the culprit suppressed, success
+        trace = attempt(policy, EGG, steps=6, seed=0)
+        _force_suppression(trace, 0)
+        reports.append(policy.kvm_feedback("success", trace))
+    assert [len(r["interventions"]) for r in reports] == [1, 1, 1, 1]
+    assert all(r["interventions"][0]["necessary"] for r in reports)  # the only skill: relevance 1 > tau_high
+    assert [bool(r["confirmed"]) for r in reports] == [False, False, False, True]
+    confirmed = reports[-1]["confirmed"][0]
+    assert confirmed["gap"] and confirmed["permanent_negatives"] > 0
+    assert policy.kvm.n_permanent() == confirmed["permanent_negatives"]
+    new = reports[-1]["new_skill"]
+    assert new["created"] and new["index"] == 1 and policy.n_skills == 2
+    assert policy.skills[1].name == new["name"]
+    info = policy.kvm.hypotheses.info(confirmed["hypothesis"])
+    assert info["state"] == "confirmed" and info["gap"] and info["new_skill"] == 1
+    # focused steps touched the new skill only
+    for k, v in policy.backbone.state_dict().items():
+        assert torch.equal(v, backbone[k]), k
+    for k, v in policy.pool.tasks[0].state_dict().items():
+        assert torch.equal(v, old_skill[k]), k
+    assert "focused_l1" in new and new["seed_frames"] == 6
+
+
+def test_unnecessary_interventions_do_not_confirm(make_policy, attempt, make_kvm_config) -> None:
+    policy = make_policy(kvm=make_kvm_config(tau_high=1.0))  # relevance can never exceed 1: never necessary
+    policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6, seed=0), gradient_steps=0)
+    for _ in range(6):
+        trace = attempt(policy, EGG, steps=6, seed=0)
+        _force_suppression(trace, 0)
+        report = policy.kvm_feedback("success", trace)
+        assert report["interventions"] and not report["interventions"][0]["necessary"]
+        assert not report["confirmed"]
+    assert policy.n_skills == 1
+
+
+def test_interventions_in_dissimilar_contexts_do_not_count(make_policy, attempt, make_kvm_config) -> None:
+    policy = make_policy(kvm=make_kvm_config(similarity=1.0))  # only identical codes are "similar"
+    policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6, seed=0), gradient_steps=0)
+    trace = attempt(policy, "open the drawer", steps=6, seed=7, shift=5.0)
+    _force_suppression(trace, 0)
+    assert policy.kvm_feedback("success", trace)["interventions"] == []
+
+
+def test_chronic_failures_prune_a_skill_which_stays_recoverable(make_policy, attempt) -> None:
+    policy = make_policy()
+    policy.begin_new_skill("gentle_grasp")
+    reports = [
+        policy.kvm_feedback("failure", attempt(policy, f"task {i}", steps=3, seed=i), gradient_steps=0)
+        for i in range(5)
+    ]
+    assert all(r["pruned"] == [] for r in reports[:4])  # the window of 5 new tasks is not full yet
+    pruned = reports[-1]["pruned"]
+    fcrnc = reports[-1]["fcrnc"]
+    assert pruned and all(fcrnc[i] > 0.8 for i in pruned)
+    assert torch.equal(policy.kvm_active_skills(), torch.tensor([i not in pruned for i in range(2)]))
+    trace = attempt(policy, "task 0", steps=2, seed=0)
+    tele = trace.telemetry[-1]
+    for i in pruned:
+        assert tele.skill_weight[0, i] == 0 and not tele.candidate[0, i] and tele.validity[0, i] == 0
+    assert policy.skills[pruned[0]].name  # never deleted from the skill table
+    policy.kvm_restore_skill(pruned[0])
+    assert bool(policy.kvm_active_skills()[pruned[0]])

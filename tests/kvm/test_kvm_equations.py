@@ -1,0 +1,150 @@
+"""Each KVM equation against hand-computed values: eqs. 1, 2, 3, 5, 6, 7, 8 (+ bounded energy, BCE variant)."""
+
+import math
+
+import pytest
+import torch
+from torch import nn
+
+from lerobot_kvm.kvm.energy import EnergyModel, RiskClassifier, validity
+from lerobot_kvm.kvm.fusion import fuse_weights
+from lerobot_kvm.kvm.gate import SmartGate, adaptive_threshold
+from lerobot_kvm.kvm.losses import bce_loss, contrastive_loss, energy_loss, total_loss
+from lerobot_kvm.kvm.metabolism import SkillMetabolism, fcrnc, srnc
+from lerobot_kvm.policy.coda_prompt import CodaPromptPool
+
+
+def test_eq1_adaptive_threshold_is_mean_plus_k_population_std() -> None:
+    tau, mean, std = adaptive_threshold(torch.tensor([1.0, 2.0, 3.0, 4.0]), k=3.0)
+    assert mean.item() == pytest.approx(2.5)
+    assert std.item() == pytest.approx(math.sqrt(1.25))
+    assert tau.item() == pytest.approx(2.5 + 3 * math.sqrt(1.25))
+
+
+class _FirstColumnIsSigma(nn.Module):
+    """A stand-in encoder whose sigma^2 is the first column of the raw context."""
+
+    def forward(self, c_raw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return c_raw, c_raw[:, 0]
+
+
+def test_eq1_gate_uses_the_last_n_successful_interactions() -> None:
+    gate = SmartGate(window=4, raw_dim=2, k=3.0, min_count=3)
+    enc = _FirstColumnIsSigma()
+    gate.push(torch.tensor([[9.0, 0.0], [1.0, 0.0]]))
+    assert gate.threshold(enc).item() == float("-inf")  # fewer than min_count: no statistics, always assess
+    gate.push(torch.tensor([[2.0, 0.0], [3.0, 0.0], [4.0, 0.0]]))  # the ring drops the oldest (9.0)
+    assert len(gate.window) == 4
+    assert gate.threshold(enc).item() == pytest.approx(2.5 + 3 * math.sqrt(1.25))
+    assert gate.stats[1].item() == pytest.approx(2.5) and gate.stats[2].item() == pytest.approx(math.sqrt(1.25))
+
+
+@pytest.mark.parametrize(
+    ("energy", "gamma", "l0", "expected"),
+    [
+        (0.0, 1.0, -5.0, 1 / (1 + math.exp(-5))),  # 0.99331
+        (5.0, 1.0, -5.0, 0.5),
+        (10.0, 1.0, -5.0, 1 / (1 + math.exp(5))),  # 0.00669: the energy margin m_e gives v << tau_v
+        (6.0, 2.0, -5.0, 1 / (1 + math.exp(2))),
+        (-3.0, 1.0, -5.0, 1 / (1 + math.exp(-8))),
+    ],
+)
+def test_eq2_validity(energy, gamma, l0, expected) -> None:
+    assert validity(torch.tensor(energy), gamma, l0).item() == pytest.approx(expected, rel=1e-6)
+
+
+def test_eq2_bce_energy_equivalent_gives_probability_of_safe() -> None:
+    logit = torch.tensor([-2.0, 0.0, 3.0])
+    v = validity(RiskClassifier.energy_equivalent(logit, 1.0, -5.0), 1.0, -5.0)
+    torch.testing.assert_close(v, 1 - torch.sigmoid(logit))
+
+
+def test_bounded_energy_never_exceeds_e_max() -> None:
+    model = EnergyModel(feature_dim=4, hidden=[8], energy_max=20.0)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.fill_(50.0)
+    e = model(torch.ones(3, 4))
+    assert (e.abs() <= 20.0).all() and e.max().item() == pytest.approx(20.0)
+    assert model(-torch.ones(1, 4)).item() >= -20.0
+
+
+def test_eq3_fusion_is_identity_at_v_one_and_renormalises_suppression() -> None:
+    alphas = torch.tensor([[0.5, -1.5, 2.0]])
+    ones = torch.ones(1, 3)
+    assert torch.equal(fuse_weights(ones, alphas), ones)  # exactly: S / S = 1.0
+    w = fuse_weights(torch.tensor([[0.0, 1.0, 1.0]]), alphas)
+    torch.testing.assert_close(w, torch.tensor([[0.0, 4.0 / 3.5, 4.0 / 3.5]]))
+    w = fuse_weights(torch.tensor([[0.5, 1.0, 0.25]]), alphas)
+    kept = 0.5 * 0.5 + 1.5 + 0.25 * 2.0
+    torch.testing.assert_close(w, torch.tensor([[0.5, 1.0, 0.25]]) * 4.0 / kept)
+    assert torch.equal(fuse_weights(torch.zeros(1, 3), alphas), torch.zeros(1, 3))  # all invalid: nothing
+    v = torch.tensor([[0.0, 1.0, 1.0]])
+    assert torch.equal(fuse_weights(v, alphas, renormalize=False), v)
+
+
+def test_eq3_fused_prompt_is_the_weighted_sum_of_skill_contributions() -> None:
+    torch.manual_seed(0)
+    pool = CodaPromptPool(n_layers=1, pool_size=6, n_tasks=3, prompt_length=2, dim_model=4, query_dim=8)
+    for name in ("a", "b", "c"):
+        pool.begin_skill(name)
+    query = torch.randn(2, 8)
+    contributions = pool.skill_prompts(query)  # [L, B, S, Lp, D]
+    alphas = pool.skill_relevance(query)
+    v = torch.tensor([[0.0, 1.0, 1.0], [1.0, 0.2, 1.0]])
+    weights = fuse_weights(v, alphas)
+    expected = (contributions * weights[None, :, :, None, None]).sum(2)
+    torch.testing.assert_close(pool(query, weights), expected)
+    assert torch.equal(pool(query, fuse_weights(torch.ones(2, 3), alphas)), pool(query))
+
+
+def test_eq5_triplet_loss_hand_values() -> None:
+    anchor = torch.tensor([[0.0, 0.0], [0.0, 0.0]])
+    safe = torch.tensor([[1.0, 0.0], [1.0, 0.0]])
+    fail = torch.tensor([[0.0, 2.0], [0.0, 1.2]])
+    # row 0: relu(1 - 2 + 0.5) = 0; row 1: relu(1 - 1.2 + 0.5) = 0.3
+    assert contrastive_loss(anchor, safe, fail, margin=0.5).item() == pytest.approx(0.15)
+
+
+def test_eq6_energy_loss_hand_values_and_eq13() -> None:
+    e_safe = torch.tensor([1.0, -3.0])
+    e_fail = torch.tensor([12.0, 4.0])
+    # mean(1, -3) + mean(relu(10 - 12), relu(10 - 4)) = -1 + 3
+    loss = energy_loss(e_safe, e_fail, margin=10.0)
+    assert loss.item() == pytest.approx(2.0)
+    assert energy_loss(e_safe, e_fail[:0], 10.0).item() == pytest.approx(-1.0)
+    assert total_loss(torch.tensor(0.5), loss, weight=2.0).item() == pytest.approx(4.5)
+    # with a floor at -2 the safe term is mean(max(1, -2), max(-3, -2)) = -0.5, and -3 gets no gradient
+    e_safe = e_safe.clone().requires_grad_(True)
+    floored = energy_loss(e_safe, e_fail, margin=10.0, floor=2.0)
+    assert floored.item() == pytest.approx(-0.5 + 3.0)
+    floored.backward()
+    assert e_safe.grad.tolist() == [0.5, 0.0]
+
+
+def test_bce_loss_labels_safe_zero_and_fail_one() -> None:
+    loss = bce_loss(torch.tensor([0.0]), torch.tensor([0.0]))
+    assert loss.item() == pytest.approx(2 * math.log(2))
+
+
+def test_eq7_eq8_from_counts() -> None:
+    proposed = torch.tensor([[2, 1], [4, 4], [0, 0]])
+    failed = torch.tensor([[1, 0], [2, 1], [0, 0]])
+    suppressed = torch.tensor([[3, 0], [0, 4], [0, 0]])
+    torch.testing.assert_close(fcrnc(failed, proposed), torch.tensor([1 / 3, 3 / 8, 0.0]))
+    torch.testing.assert_close(srnc(suppressed, proposed), torch.tensor([1.0, 0.5, 0.0]))
+
+
+def test_eq7_eq8_over_a_sliding_window_of_new_tasks() -> None:
+    meta = SkillMetabolism(max_skills=2, window=2, threshold=0.8, min_interactions=1)
+    p = torch.tensor([True, True])
+    meta.record("task a", p, failed=True, suppressed=torch.tensor([True, False]))
+    meta.record("task a", torch.tensor([True, False]), failed=False, suppressed=torch.tensor([False, False]))
+    meta.record("task b", p, failed=False, suppressed=torch.tensor([False, True]))
+    # skill 0: 3 proposals, 1 failure, 1 suppression; skill 1: 2 proposals, 1 failure, 1 suppression
+    torch.testing.assert_close(meta.fcrnc(), torch.tensor([1 / 3, 1 / 2]))
+    torch.testing.assert_close(meta.srnc(), torch.tensor([1 / 3, 1 / 2]))
+    meta.record("task c", torch.tensor([True, False]), failed=True, suppressed=torch.tensor([True, False]))
+    # task a left the window of the 2 most recent new tasks: skill 0 has b (ok) and c (failed, suppressed)
+    torch.testing.assert_close(meta.fcrnc(), torch.tensor([1 / 2, 0.0]))
+    torch.testing.assert_close(meta.srnc(), torch.tensor([1 / 2, 1.0]))

@@ -1,0 +1,214 @@
+"""The KVM inside `coda_kvm`: ablation switches, identity with the CODA core, fail-safe, telemetry, offline
+learning inside forward() (labels, leakage rule), config on the command line, overhead measurement."""
+
+import json
+
+import draccus
+import pytest
+import torch
+
+from lerobot_kvm.kvm.configuration import KvmConfig
+from lerobot_kvm.kvm.overhead import measure_overhead
+from lerobot_kvm.policy import CodaKvmConfig
+
+CONTEXT = "observation.context"
+
+
+def two_skill_policy(make_policy, **overrides):
+    policy = make_policy(**overrides)
+    policy.begin_new_skill("gentle_grasp")
+    policy.eval()
+    return policy
+
+
+def test_kvm_disabled_gives_exactly_the_coda_core_actions(make_policy, make_batch) -> None:
+    policy = two_skill_policy(make_policy)
+    batch = make_batch(policy.config, with_action=False)
+    core = policy._predict(batch, None)  # plain CODA-Prompt
+    policy.config.kvm.enabled = False
+    assert torch.equal(policy.predict_action_chunk(batch), core)
+    assert policy.kvm_telemetry is None
+    policy.reset()
+    assert torch.equal(policy.select_action(batch), core[:, 0])
+
+
+def test_every_v_forced_to_one_gives_exactly_the_coda_core_actions(make_policy, make_batch, make_kvm_config) -> None:
+    policy = two_skill_policy(make_policy, kvm=make_kvm_config(force_validity=1.0, smart_gate=False))
+    batch = make_batch(policy.config, with_action=False)
+    core = policy._predict(batch, None)
+    assert torch.equal(policy.predict_action_chunk(batch), core)
+    tele = policy.kvm_telemetry
+    assert tele.gate.all() and torch.equal(tele.validity, torch.ones(4, 2))
+    assert torch.equal(tele.skill_weight, torch.ones(4, 2))
+
+
+def test_closed_gate_gives_exactly_the_coda_core_actions(make_policy, make_batch) -> None:
+    policy = two_skill_policy(make_policy)
+    batch = make_batch(policy.config, with_action=False)
+    core = policy._predict(batch, None)
+    policy.kvm.set_gate_override("closed")
+    assert torch.equal(policy.predict_action_chunk(batch), core)
+    assert not policy.kvm_telemetry.gate.any() and torch.isnan(policy.kvm_telemetry.energy).all()
+    policy.kvm.set_gate_override("open")
+    open_chunk = policy.predict_action_chunk(batch)
+    tele = policy.kvm_telemetry
+    assert tele.gate.all() and torch.isfinite(tele.energy).all() and (tele.validity < 1).all()
+    assert not torch.equal(open_chunk, core)  # v < 1 re-weights the skills
+
+
+def test_suppressing_a_skill_follows_eq3(make_policy, make_batch, make_kvm_config) -> None:
+    policy = two_skill_policy(make_policy, kvm=make_kvm_config(force_validity=0.0))
+    batch = make_batch(policy.config, with_action=False)
+    policy.predict_action_chunk(batch)
+    assert torch.equal(policy.kvm_telemetry.skill_weight, torch.zeros(4, 2))  # every skill invalid: no prompt
+
+
+def test_non_finite_context_or_energy_is_invalid_never_valid(make_policy, make_batch) -> None:
+    policy = two_skill_policy(make_policy)
+    batch = make_batch(policy.config)
+    context = batch[CONTEXT].clone()
+    context[1, 2] = float("nan")
+    context[2, 0] = float("inf")
+    query = policy.encode_query(batch["task"])
+    alphas = policy.skill_relevance(batch["task"])
+    weights, tele = policy.kvm.assess(context, query, alphas, policy.kvm_active_skills())
+    assert tele.invalid[1].all() and tele.invalid[2].all() and not tele.invalid[0].any()
+    assert (tele.validity[1:3] == 0).all() and (weights[1:3] == 0).all()
+    assert tele.gate[1] and tele.gate[2]
+
+    def nan_energy(h):
+        return torch.full(h.shape[:-1], float("nan"))
+
+    policy.kvm.energy.forward = nan_energy
+    policy.kvm.set_gate_override("open")
+    weights, tele = policy.kvm.assess(batch[CONTEXT], query, alphas, policy.kvm_active_skills())
+    assert tele.invalid.all() and (tele.validity == 0).all() and (weights == 0).all()
+    # the policy's own input check still rejects NaN observations with a clear error
+    batch[CONTEXT] = context
+    with pytest.raises(ValueError, match=r"observation\.context"):
+        policy.select_action(batch)
+
+
+def test_telemetry_and_trace_per_step(make_policy, attempt) -> None:
+    policy = two_skill_policy(make_policy)
+    trace = attempt(policy, "pick up the egg", steps=5)
+    assert len(trace) == 5 and trace.batch_size == 1
+    assert all(t is not None for t in trace.telemetry)
+    tele = policy.kvm_telemetry
+    row = tele.row(0)
+    assert set(row) >= {"sigma2", "tau", "gate", "alpha", "energy", "validity", "decision_weight", "intervention"}
+    assert len(row["validity"]) == 2
+    json.dumps(row)
+    summary = trace.summary()
+    assert summary["steps"] == 5 and 0 <= summary["gate_open_steps"] <= 5
+    assert trace.observations and CONTEXT in trace.observations[0]
+    policy.reset()
+    assert len(policy.kvm_trace()) == 0
+
+
+def test_risk_model_and_smart_gate_switch_on_the_same_weights(make_policy, make_batch) -> None:
+    policy = two_skill_policy(make_policy)
+    batch = make_batch(policy.config, with_action=False)
+    v_energy = policy.kvm_validity(batch)
+    policy.config.kvm.risk_model = "bce"
+    v_bce = policy.kvm_validity(batch)
+    assert v_energy.shape == v_bce.shape == (4, 2) and not torch.equal(v_energy, v_bce)
+    policy.config.kvm.smart_gate = False
+    policy.kvm.gate.push(torch.zeros(64, policy.kvm.encoder.raw_dim))  # statistics exist now
+    policy.predict_action_chunk(batch)
+    assert policy.kvm_telemetry.gate.all()
+
+
+def test_assess_every_step_replans_when_a_suppression_starts(make_policy, make_batch, make_kvm_config) -> None:
+    policy = two_skill_policy(make_policy, kvm=make_kvm_config(assess_every_step=True))
+    batch = make_batch(policy.config, batch_size=1, with_action=False)
+    policy.select_action(batch)
+    assert len(policy._action_queue) == 1
+    policy.config.kvm.force_validity = 0.0  # every candidate now suppressed
+    policy.select_action(batch)
+    assert len(policy._action_queue) == 1  # the queued chunk was dropped and a new one planned
+    assert policy.kvm_telemetry.intervention.any()
+
+
+def test_forward_learns_the_kvm_offline_and_reports_metrics(make_policy, make_batch) -> None:
+    policy = two_skill_policy(make_policy)
+    policy.train()
+    batch = make_batch(policy.config)
+    loss, info = policy.forward(batch)
+    for key in ("kvm_loss", "kvm_recon", "kvm_energy_loss", "kvm_contrast", "kvm_tau", "kvm_gate_rate", "kvm_v_fail"):
+        assert isinstance(info[key], float), key
+    loss.backward()
+    assert all(p.grad is not None for p in policy.kvm.energy.parameters())
+    assert len(policy.kvm.gate.window) == 4 and len(policy.kvm.safe_offline) == 4
+    per_sample, _ = policy.forward(batch, reduction="none")
+    assert per_sample.shape == (4,)
+    policy.eval()
+    _, info = policy.forward(batch)
+    assert not any(k.startswith("kvm_") for k in info)  # evaluation loss: no learning, no buffer updates
+    assert len(policy.kvm.gate.window) == 8
+
+
+class _Meta:
+    def __init__(self, root):
+        self.root = root
+
+
+def test_dataset_labels_map_skills_by_name_and_never_use_shifted_frames(make_config, make_batch, tmp_path) -> None:
+    from lerobot_kvm.policy import CodaKvmPolicy
+
+    labels = {
+        "episodes": [
+            {"episode_index": 0, "skill": "firm_grasp", "outcome": "success", "variant": "prior"},
+            {"episode_index": 1, "skill": "gentle_grasp", "outcome": "success", "variant": "prior"},
+            {"episode_index": 2, "skill": "firm_grasp", "outcome": "catastrophe", "variant": "control"},
+            {"episode_index": 3, "skill": "firm_grasp", "outcome": "catastrophe", "variant": "shifted"},
+            {"episode_index": 4, "skill": "weird_skill", "outcome": "success", "variant": "prior"},
+        ]
+    }
+    (tmp_path / "meta").mkdir()
+    (tmp_path / "meta" / "kvm_labels.json").write_text(json.dumps(labels))
+    torch.manual_seed(0)
+    policy = CodaKvmPolicy(make_config(), dataset_meta=_Meta(tmp_path))
+    policy.begin_new_skill("gentle_grasp")
+    names = [s.name for s in policy.skills]
+    skill, outcome, usable = policy.kvm.labels.lookup(torch.tensor([0, 1, 2, 3, 4, 40]), 6, names, 1)
+    assert skill.tolist() == [0, 1, 0, 0, 1, 1]  # unknown skill and unlabelled episode -> the skill being trained
+    assert outcome.tolist() == [0, 0, 2, 2, 0, 0]
+    assert usable.tolist() == [True, True, True, False, True, True]  # the shifted episode is never used
+    policy.train()
+    batch = make_batch(policy.config, batch_size=4)
+    batch["episode_index"] = torch.tensor([0, 2, 3, 3])
+    policy.forward(batch)
+    assert len(policy.kvm.safe_offline) == 1 and len(policy.kvm.fail_offline) == 1  # shifted frames dropped
+
+
+def test_kvm_config_on_the_command_line_and_validation() -> None:
+    cfg = draccus.parse(
+        CodaKvmConfig, args=["--kvm.enabled=false", "--kvm.risk_model=bce", "--kvm.smart_gate=false", "--kvm.gate_k=2"]
+    )
+    assert cfg.kvm.enabled is False and cfg.kvm.risk_model == "bce" and cfg.kvm.smart_gate is False
+    assert cfg.kvm.gate_k == 2.0
+    defaults = KvmConfig()
+    assert (defaults.gate_k, defaults.gate_window, defaults.gamma, defaults.l0) == (3.0, 1000, 1.0, -5.0)
+    assert (defaults.energy_margin, defaults.persistence, defaults.tau_high, defaults.tau_v) == (10.0, 3, 0.8, 0.1)
+    assert (defaults.metabolism_window, defaults.prune_threshold) == (5, 0.8)
+    assert defaults.encoder_hidden == [128, 128] and defaults.energy_hidden == [256, 256, 256]
+    for bad, name in [
+        ({"risk_model": "svm"}, "risk_model"),
+        ({"tau_v": 1.5}, "tau_v"),
+        ({"gate_window": 0}, "gate_window"),
+        ({"energy_margin": 30.0}, "energy_margin"),
+        ({"encoder_hidden": []}, "encoder_hidden"),
+    ]:
+        with pytest.raises(ValueError, match=name):
+            KvmConfig(**bad)
+
+
+def test_overhead_measures_three_modes_on_the_same_inputs(make_policy, make_batch) -> None:
+    policy = two_skill_policy(make_policy)
+    batch = make_batch(policy.config, batch_size=1, with_action=False)
+    result = measure_overhead(policy, batch, steps=4, warmup=1, block=2)
+    assert set(result["model_call_ms"]) == {"off", "closed", "open"}
+    assert result["gate_open_check"] == {"off": False, "closed": False, "open": True}
+    assert result["ratio_gate_closed"] > 0 and result["ratio_gate_open"] > 0
+    assert policy.config.kvm.enabled and policy.kvm.gate_override is None  # settings restored
