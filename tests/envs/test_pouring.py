@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.scenarios.pouring import BOWL_H, BOWL_IN
 
 TASK = "pouring"
 
@@ -24,7 +25,7 @@ def drops_beside_the_bowl(env) -> int:
     scenario = env.scenario
     p = scenario.drop_positions(env.data)
     rel = np.abs(p[:, :2] - scenario.bowl)
-    return int(((rel.max(axis=1) > 0.063) & (p[:, 2] < 0.08)).sum())
+    return int(((rel.max(axis=1) > BOWL_IN + 0.003) & (p[:, 2] < BOWL_H)).sum())
 
 
 def test_quick_pour_empties_water_into_the_bowl():

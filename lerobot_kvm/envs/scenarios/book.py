@@ -3,7 +3,7 @@
 Both books are the same size and lie flat on the table. Their back edge (where a pusher meets
 them) is a cover panel on a stiff elastic mount (a slide joint with a spring). The hardcover's
 board takes any push elastically; the paperback's card cover yields (MuJoCo joint-spring
-plasticity, `springyield`) above about 5 N and keeps a permanent dent, read from `data.plastic`.
+plasticity, `springyield`) above 4 N and keeps a permanent dent, read from `data.plastic`.
 A quick push hits with an impact far above that; a slow push slides either book with a contact
 force of about its sliding friction (1-3 N).
 """
@@ -142,7 +142,7 @@ class BookPushExpert(Expert):
     def __init__(self, speed: float) -> None:
         self.speed = speed
         self.phase = "approach"
-        self.target = np.zeros(3)
+        self.target: np.ndarray | None = None  # set from the hand's position on the first step
         self.goal_x = 0.0
         self.timer = 0
 
@@ -152,7 +152,7 @@ class BookPushExpert(Expert):
         pos = env.sensors.arm_position(d)
         back = book[0] - HALF[0]
         self.timer += 1
-        if self.timer == 1:
+        if self.target is None:
             self.target = pos[:3].copy()
         if self.phase == "approach":
             start = np.array([back - 0.015 - 0.03, book[1], self.PUSH_Z + 0.07])

@@ -143,7 +143,7 @@ class RimLiftExpert(Expert):
 
     def __init__(self) -> None:
         self.phase = "approach"
-        self.target = np.zeros(3)
+        self.target: np.ndarray | None = None  # set from the hand's position on the first step
         self.grasp_z = 0.0
         self.timer = 0
 
@@ -153,7 +153,7 @@ class RimLiftExpert(Expert):
         lip_y = rim[1] - (HINGE_Y + HALF_Y) / 2 + LIP_T
         pos = env.sensors.arm_position(d)
         self.timer += 1
-        if self.timer == 1:
+        if self.target is None:
             self.target = pos[:3].copy()
         if self.phase in ("approach", "descend"):
             self.grasp_z = rim[2] + FLOOR + 0.003 + 0.07  # fingertips just above the plate's floor
@@ -186,7 +186,7 @@ class SupportLiftExpert(Expert):
 
     def __init__(self) -> None:
         self.phase = "turn"
-        self.target = np.zeros(3)
+        self.target: np.ndarray | None = None  # set from the hand's position on the first step
         self.timer = 0
 
     def act(self, env) -> np.ndarray:
@@ -195,7 +195,7 @@ class SupportLiftExpert(Expert):
         near_x = plate[0] - HALF_X
         pos = env.sensors.arm_position(d)
         self.timer += 1
-        if self.timer == 1:
+        if self.target is None:
             self.target = pos[:3].copy()
         tine_z = STAND_H - self.TINE - 0.003  # fingers' top just under the plate's underside
         pitch = self.PITCH

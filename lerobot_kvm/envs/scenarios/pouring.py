@@ -31,7 +31,7 @@ CUP_FLOOR = -0.062  # inner floor height
 LIP = np.array([CUP_X + CUP_IN, CUP_TOP])  # the pour lip (x, z)
 BOWL_X = 0.10
 BOWL_IN = 0.06
-BOWL_H = 0.10
+BOWL_H = 0.065
 IN_BOWL = 0.9  # success: this share of the liquid in the bowl
 SPILL = 2  # catastrophe: this many drops falling or lying outside the bowl
 # variant -> (drag N s/m of each drop relative to the cup while inside it, rgba). Outside the cup
@@ -89,7 +89,7 @@ class Pouring(Scenario):
         bowl_walls = "".join(
             f"""
       <geom name="bowl_{n}" type="box" size="{sx} {sy} {BOWL_H / 2 + 0.005}" pos="{dx} {dy} {BOWL_H / 2 - 0.005}"
-            rgba="0.55 0.7 0.8 1"/>"""
+            rgba="0.92 0.9 0.84 1"/>"""
             for n, sx, sy, dx, dy in (
                 ("xp", bt, BOWL_IN + 2 * bt, BOWL_IN + bt, 0),
                 ("xm", bt, BOWL_IN + 2 * bt, -BOWL_IN - bt, 0),
@@ -101,7 +101,7 @@ class Pouring(Scenario):
         bowl = f"""
     <body name="bowl" mocap="true" pos="{BOWL_X} 0 0">
       <geom name="bowl_floor" type="box" size="{BOWL_IN + bt} {BOWL_IN + bt} 0.006" pos="0 0 -0.003"
-            rgba="0.5 0.62 0.72 1"/>{bowl_walls}
+            rgba="0.86 0.84 0.78 1"/>{bowl_walls}
     </body>"""
         # Drops hang off the hand on x/y/z slide joints: their damping is a drag relative to the cup. They
         # sit in a frame on a locked hinge so that they are not the hand's direct children (MuJoCo filters
@@ -215,7 +215,7 @@ class PourExpert(Expert):
     LIP_INSIDE = 0.012  # the lip just inside the bowl's near wall: honey drips straight down there,
     # water shoots 6-10 cm ahead
     RETURN_STEPS = 8
-    HAND_Z = 0.22  # carry and pour height of the wrist: the tilting cup clears the bowl's rim
+    HAND_Z = 0.17  # carry and pour height of the wrist: the tilting cup clears the bowl's rim
 
     def __init__(self, tilt_steps: int, hold: int, settle: float | None) -> None:
         self.tilt_steps, self.hold, self.settle = tilt_steps, hold, settle
