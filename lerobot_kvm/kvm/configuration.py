@@ -44,9 +44,12 @@ class KvmConfig:
     gamma: float = 1.0
     l0: float = -5.0  # l0'
     tau_v: float = 0.1  # v below this is a suppression ("intervention"); also eq. 8's threshold
-    # Eq. 3 as a re-weighting of the unnormalised CODA prompt: skill weights v_i * S / sum_j v_j |alpha_j|
-    # with S = sum_j |alpha_j| (identity at v = 1; suppressing a skill shifts its mass to the others).
-    fusion_renormalize: bool = True
+    # Eq. 3 on the unnormalised CODA prompt: each skill's contribution scaled by v_i (w_i = v_i * alpha_i; the
+    # identity at v = 1). With `fusion_renormalize` the weights become v_i * S / sum_j v_j |alpha_j|,
+    # S = sum_j |alpha_j| (eq. 3's normalisation: suppressed mass goes to the other skills). Off by default:
+    # CODA trains skill k with the prompt sum_{i<=k} c_i, so suppressing later skills restores exactly the
+    # prompt an earlier skill was trained with, while renormalising rescales it to a magnitude never trained.
+    fusion_renormalize: bool = False
     fusion_eps: float = 1e-3  # the renormalisation factor never exceeds 1 / fusion_eps
     candidate_min_alpha: float = 0.2  # a skill is "proposed" (P_cand) when its normalised relevance >= this
 

@@ -3,16 +3,24 @@
 c_raw = [normalized sensed context (wrist F/T, touch, efforts, tracking error, finger velocity, last action),
          sqrt(D_q) * q(x)]  -- the frozen query embedding, rescaled so its entries are O(1) like the sensed ones.
 
-E_c is an MLP (2x128, ReLU) to mu_c with a mirrored decoder back to c_raw. sigma_c^2 is the maximum-likelihood
-variance of c_raw under the decoder's isotropic Gaussian p(c_raw | mu_c), i.e. the mean squared reconstruction
-residual (sensed part + query_weight * query part). The decoder learns only from routine safe contexts, so
-sigma_c^2 stays low on the safe experience and rises when the interaction leaves it (unfamiliar forces,
+E_c is an MLP (2x128, ReLU) to mu_c with a mirrored decoder back to c_raw. sigma_c^2 is the variance of c_raw
+under the decoder's Gaussian p(c_raw | mu_c), estimated per modality: the mean squared reconstruction residual of
+the sensed part and of the query part, each in units of its typical size on the safe experience (the smart
+gate's window), summed (the query part weighted by `query_weight`):
+
+    sigma_c^2 = r_sensed / s_sensed + query_weight * r_query / s_query
+
+so that neither modality drowns the other (contact transients make the sensed residual heavy-tailed; a
+memorised instruction reconstructs almost exactly, so an unfamiliar one stands out by orders of magnitude).
+The decoder learns only from routine safe contexts (on the raw residual r_sensed + query_weight * r_query),
+so sigma_c^2 stays low on the safe experience and rises when the interaction leaves it (unfamiliar forces,
 an unfamiliar object or instruction): the novelty signal the smart gate (eq. 1) thresholds.
 """
 
 import math
 
 import torch
+import torch.nn.functional as F  # noqa: N812
 from torch import Tensor, nn
 
 
@@ -47,15 +55,45 @@ class ContextEncoder(nn.Module):
             raise ValueError("the KVM context encoder uses the query embedding q(x), but none was given")
         return torch.cat([sensed, query.to(sensed) * self.query_scale], dim=-1)
 
-    def residual(self, c_raw: Tensor, recon: Tensor) -> Tensor:
-        """sigma_c^2 [B]: mean squared residual of the sensed part + query_weight * that of the query part."""
+    def residual_parts(self, c_raw: Tensor, recon: Tensor) -> Tensor:
+        """[B, P] mean squared residual per modality: sensed, then query (P = 2 with the query, else 1)."""
         sq = (c_raw - recon) ** 2
-        sigma2 = sq[..., : self.sensed_dim].mean(-1)
+        parts = [sq[..., : self.sensed_dim].mean(-1)]
         if self.query_dim:
-            sigma2 = sigma2 + self.query_weight * sq[..., self.sensed_dim :].mean(-1)
-        return sigma2
+            parts.append(sq[..., self.sensed_dim :].mean(-1))
+        return torch.stack(parts, dim=-1)
+
+    def weights(self) -> list[float]:
+        return [1.0, self.query_weight] if self.query_dim else [1.0]
+
+    def recon_loss(self, parts: Tensor) -> Tensor:
+        """[B] raw reconstruction residual r_sensed + query_weight * r_query (what the decoder minimises)."""
+        return (parts * parts.new_tensor(self.weights())).sum(-1)
+
+    def sigma2(self, parts: Tensor, scale: Tensor) -> Tensor:
+        """[B] sigma_c^2: each modality's residual relative to its scale on the safe experience."""
+        return (parts / scale * parts.new_tensor(self.weights())).sum(-1)
+
+    def dim_weights(self, scale: Tensor) -> Tensor:
+        """[raw_dim] per-dimension weights with sigma2(parts, scale) == squared residual @ dim_weights."""
+        w = [torch.full((self.sensed_dim,), 1.0 / (self.sensed_dim * float(scale[0])))]
+        if self.query_dim:
+            w.append(torch.full((self.query_dim,), self.query_weight / (self.query_dim * float(scale[1]))))
+        return torch.cat(w).to(scale.device)
+
+    @staticmethod
+    def _run(net: nn.Sequential, x: Tensor) -> Tensor:
+        """The MLP with functional calls (no module-call overhead: this runs at every control step)."""
+        for layer in net:
+            x = F.linear(x, layer.weight, layer.bias) if isinstance(layer, nn.Linear) else torch.relu(x)
+        return x
+
+    def code_and_sigma2(self, c_raw: Tensor, dim_weights: Tensor) -> tuple[Tensor, Tensor]:
+        """(mu_c, sigma_c^2) in the fewest operations: sigma_c^2 = squared residual @ dim_weights."""
+        mu = self._run(self.encoder, c_raw)
+        return mu, (c_raw - self._run(self.decoder, mu)).square() @ dim_weights
 
     def forward(self, c_raw: Tensor) -> tuple[Tensor, Tensor]:
-        """(mu_c [B, latent_dim], sigma_c^2 [B])."""
+        """(mu_c [B, latent_dim], residual parts [B, P])."""
         mu = self.encoder(c_raw)
-        return mu, self.residual(c_raw, self.decoder(mu))
+        return mu, self.residual_parts(c_raw, self.decoder(mu))

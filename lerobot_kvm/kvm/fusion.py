@@ -1,23 +1,25 @@
 """Decision weights and the fused prompt (eqs. 3-4) on the CODA-Prompt core.
 
 The paper fuses P_fused = sum_i w_i P_i / (sum_i w_i + eps) with w_i = v_i * alpha_i. The CODA prompt is the
-*unnormalised* sum sum_i c_i of the skills' contributions c_i = sum_{m in i} alpha_m P_m, and its alphas can be
-negative. Eq. 3 is therefore applied as a re-weighting of those contributions that reduces to the identity
-when every v_i = 1:
+*unnormalised* sum sum_i c_i of the skills' contributions c_i = sum_{m in i} alpha_m P_m (alpha_m signed cosines,
+no softmax), so eq. 3 is applied as a re-weighting of those contributions that is the identity at v = 1:
 
-    P_fused = sum_i v_i c_i * S / max(sum_i v_i |alpha_i|, eps * S),   S = sum_i |alpha_i|
+* default (`renormalize=False`): skill weights s_i = v_i, i.e. P_fused = sum_i v_i c_i and each component's
+  alpha_m of skill i becomes v_i * alpha_m (w_i = v_i * alpha_i). A suppressed skill's contribution vanishes and
+  the others keep exactly the magnitude they were trained with (CODA trains skill k under sum_{i<=k} c_i, so
+  suppressing later skills restores an earlier skill's training prompt exactly).
+* `renormalize=True`: eq. 3's normalisation carried over, s_i = v_i * S / max(sum_j v_j |alpha_j|, eps * S) with
+  S = sum_j |alpha_j|: the suppressed relevance mass goes to the remaining skills (the factor is S / S = 1.0
+  exactly at v = 1, and at most 1 / eps).
 
-i.e. skill weights s_i = v_i * S / sum_j v_j |alpha_j| passed to the pool (each component alpha_m of skill i is
-multiplied by s_i, so w_i = s_i * alpha_i). At v = 1 the factor is S / S = 1.0 exactly and the prompt is the CODA
-prompt bit for bit; suppressing a skill removes its contribution and hands its relevance mass to the others,
-as the normalisation of eq. 3 does. With `renormalize=False` the weights are v itself.
+Either way, at v = 1 the prompt is the CODA prompt bit for bit.
 """
 
 import torch
 from torch import Tensor
 
 
-def fuse_weights(v: Tensor, alphas: Tensor, renormalize: bool = True, eps: float = 1e-3) -> Tensor:
+def fuse_weights(v: Tensor, alphas: Tensor, renormalize: bool = False, eps: float = 1e-3) -> Tensor:
     """Skill weights [B, S] for the CODA pool from validity v [B, S] and per-skill relevance alpha [B, S]."""
     if not renormalize:
         return v

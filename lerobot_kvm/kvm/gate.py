@@ -3,9 +3,11 @@ the last N successful interactions.
 
 The window stores those interactions themselves (their raw contexts, a ring of N control steps from
 successful routine episodes: dataset frames during `lerobot-train`, successful attempts without intervention
-online). Their sigma^2 is recomputed with the *current* encoder whenever it has changed, so tau always
-describes the safe experience as the encoder sees it now; the resulting mean/std/tau are persistent buffers.
-With fewer than `min_count` interactions there are no statistics yet and the gate stays open (assess always).
+online). Whenever the encoder or the window has changed, the window is re-encoded: the mean residual of each
+modality there is the scale sigma_c^2 is measured in (see `context_encoder`), and mean/std of the resulting
+sigma^2 give tau. So tau always describes the safe experience as the encoder sees it now; the scales and
+mean/std/tau are persistent buffers. With fewer than `min_count` interactions there are no statistics yet and
+the gate stays open (assess always).
 """
 
 import torch
@@ -23,13 +25,21 @@ def adaptive_threshold(sigma2: Tensor, k: float) -> tuple[Tensor, Tensor, Tensor
 
 
 class SmartGate(nn.Module):
-    def __init__(self, window: int, raw_dim: int, k: float, min_count: int) -> None:
+    def __init__(self, window: int, raw_dim: int, k: float, min_count: int, n_parts: int = 2) -> None:
         super().__init__()
         self.k = k
         self.min_count = min_count
         self.window = SampleBuffer(window, raw_dim, "ring")
         self.register_buffer("stats", torch.tensor([float("-inf"), 0.0, 0.0]))  # tau, mean, std
+        self.register_buffer("scale", torch.ones(n_parts))  # residual scale per modality
         self.stale = True  # runtime only: stats must be recomputed before the next decision
+        self.dim_weights: Tensor | None = None  # runtime cache: sigma_c^2 = squared residual @ dim_weights
+        self.tau_value = float("-inf")  # runtime cache of stats[0] as a Python float
+        self.register_load_state_dict_post_hook(SmartGate._after_load)
+
+    @staticmethod
+    def _after_load(module: "SmartGate", _incompatible_keys: object) -> None:
+        module.stale = True
 
     @property
     def tau(self) -> float:
@@ -42,20 +52,27 @@ class SmartGate(nn.Module):
 
     @torch.no_grad()
     def refresh(self, encoder: ContextEncoder) -> Tensor:
-        """Recompute (tau, mean, std) from the window with the current encoder; returns the stats buffer."""
+        """Recompute the residual scales and (tau, mean, std) from the window with the current encoder."""
         idx = self.window.filled()
         if len(idx) < max(self.min_count, 1):
+            self.scale.fill_(1.0)
             stats = torch.tensor([float("-inf"), 0.0, 0.0])
         else:
-            _, sigma2 = encoder(self.window.data[idx])
-            tau, mean, std = adaptive_threshold(sigma2, self.k)
+            _, parts = encoder(self.window.data[idx])
+            self.scale.copy_(parts.mean(0).clamp_min(1e-6))
+            tau, mean, std = adaptive_threshold(encoder.sigma2(parts, self.scale), self.k)
             stats = torch.stack([tau, mean, std])
         self.stats.copy_(stats)
+        self.dim_weights = encoder.dim_weights(self.scale)
+        self.tau_value = float(self.stats[0])
         self.stale = False
         return self.stats
 
-    def threshold(self, encoder: ContextEncoder) -> Tensor:
-        """tau as a 0-d tensor (refreshed first if the encoder or the window changed)."""
+    def ensure_fresh(self, encoder: ContextEncoder) -> None:
         if self.stale:
             self.refresh(encoder)
+
+    def threshold(self, encoder: ContextEncoder) -> Tensor:
+        """tau as a 0-d tensor (refreshed first if the encoder or the window changed)."""
+        self.ensure_fresh(encoder)
         return self.stats[0]

@@ -47,6 +47,8 @@ class SkillMetabolism(nn.Module):
         self.register_buffer("failed", torch.zeros(max_skills, window, dtype=torch.int64))
         self.register_buffer("suppressed", torch.zeros(max_skills, window, dtype=torch.int64))
         self.register_buffer("pruned", torch.zeros(max_skills, dtype=torch.int64))
+        self._active: dict[int, tuple[Tensor, bool]] = {}  # runtime cache, cleared whenever `pruned` changes
+        self.register_load_state_dict_post_hook(lambda module, _keys: module._active.clear())
 
     @torch.no_grad()
     def _slot(self, task: str) -> int:
@@ -92,9 +94,14 @@ class SkillMetabolism(nn.Module):
         newly = []
         for i in range(n_skills):
             if not self.pruned[i] and enough[i] and (f[i] > self.threshold or s[i] > self.threshold):
-                self.pruned[i] = 1
+                self.prune(i)
                 newly.append(i)
         return newly
+
+    @torch.no_grad()
+    def prune(self, skill: int) -> None:
+        self.pruned[skill] = 1
+        self._active.clear()
 
     @torch.no_grad()
     def restore(self, skill: int) -> None:
@@ -102,6 +109,20 @@ class SkillMetabolism(nn.Module):
         self.proposed[skill] = 0
         self.failed[skill] = 0
         self.suppressed[skill] = 0
+        self._active.clear()
 
     def active(self, n_skills: int) -> Tensor:
-        return self.pruned[:n_skills] == 0
+        """[n_skills] bool: not pruned (cached: read at every control step)."""
+        return self._active_entry(n_skills)[0]
+
+    def all_active(self, n_skills: int) -> bool:
+        return self._active_entry(n_skills)[1]
+
+    def _active_entry(self, n_skills: int) -> tuple[Tensor, bool]:
+        entry = self._active.get(n_skills)
+        if entry is None or entry[0].device != self.pruned.device:
+            with torch.inference_mode(False):
+                active = self.pruned[:n_skills] == 0
+            entry = (active, bool(active.all()))
+            self._active[n_skills] = entry
+        return entry

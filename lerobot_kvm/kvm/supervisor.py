@@ -9,6 +9,7 @@ update of the feedback API (see `kvm.online`).
 """
 
 from collections import deque
+from collections.abc import Callable
 
 import torch
 from torch import Tensor, nn
@@ -39,7 +40,8 @@ class KnowledgeValidityModule(nn.Module):
         self.joint = JointFeature(config.latent_dim, max_skills, config.skill_embed_dim, config.feature_dim)
         self.energy = EnergyModel(config.feature_dim, config.energy_hidden, config.energy_max)
         self.classifier = RiskClassifier(config.feature_dim, config.energy_hidden)
-        self.gate = SmartGate(config.gate_window, raw_dim, config.gate_k, config.gate_min_count)
+        n_parts = 2 if self.encoder.query_dim else 1
+        self.gate = SmartGate(config.gate_window, raw_dim, config.gate_k, config.gate_min_count, n_parts)
         self.safe_offline = SampleBuffer(config.safe_offline_capacity, raw_dim, "reservoir")
         self.safe_online = SampleBuffer(config.safe_online_capacity, raw_dim, "ring")
         self.fail_offline = SampleBuffer(config.fail_offline_capacity, raw_dim, "reservoir")
@@ -55,7 +57,8 @@ class KnowledgeValidityModule(nn.Module):
 
     # ----------------------------------------------------------------- runtime
     def train(self, mode: bool = True) -> "KnowledgeValidityModule":
-        self.gate.stale = True  # the encoder may change (or have changed) under training
+        if mode or self.training:  # entering or leaving training: the encoder may change / have changed
+            self.gate.stale = True
         return super().train(mode)
 
     def reset_runtime(self) -> None:
@@ -78,14 +81,23 @@ class KnowledgeValidityModule(nn.Module):
     def raw_context(self, sensed: Tensor, query: Tensor | None) -> Tensor:
         return self.encoder.raw_context(sensed, query)
 
-    def encode(self, c_raw: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """(mu [B, L], sigma2 [B], valid [B]); non-finite rows are zeroed before encoding and flagged (a
-        non-finite code makes sigma2 non-finite too, so one test covers context, code and residual)."""
+    def _encode_parts(self, c_raw: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """(mu [B, L], residual parts [B, P], valid [B]); non-finite rows are zeroed before encoding and flagged
+        (a non-finite code makes the residual non-finite too, so one test covers context, code and residual)."""
         finite = torch.isfinite(c_raw).all(-1)
         if not bool(finite.all()):
             c_raw = torch.where(finite.unsqueeze(-1), c_raw, torch.zeros_like(c_raw))
-        mu, sigma2 = self.encoder(c_raw)
-        return mu, sigma2, finite & torch.isfinite(sigma2)
+        mu, parts = self.encoder(c_raw)
+        return mu, parts, finite & torch.isfinite(parts).all(-1)
+
+    def encode(self, c_raw: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """(mu [B, L], sigma_c^2 [B], valid [B]) with the gate's current residual scales.
+
+        Rows are independent, so a non-finite context row only makes its own code and sigma_c^2 non-finite: one
+        finiteness test of sigma_c^2 flags non-finite contexts and codes alike."""
+        self.gate.ensure_fresh(self.encoder)
+        mu, sigma2 = self.encoder.code_and_sigma2(c_raw, self.gate.dim_weights)
+        return mu, sigma2, torch.isfinite(sigma2)
 
     def risk_energy(self, h: Tensor, risk_model: str | None = None) -> Tensor:
         """Energy of features h [..., F] under the configured risk model (energy or BCE energy-equivalent)."""
@@ -121,60 +133,67 @@ class KnowledgeValidityModule(nn.Module):
         return self.gate.threshold(self.encoder)
 
     def assess(
-        self, sensed: Tensor, query: Tensor | None, alphas: Tensor, active: Tensor
+        self,
+        sensed: Tensor,
+        query: Tensor | None,
+        alphas: Tensor | Callable[[], Tensor],
+        active: Tensor,
+        all_active: bool | None = None,
     ) -> tuple[Tensor | None, KvmStepTelemetry]:
         """Skill weights for the pool and the step's telemetry (Algorithm 1, lines 7-21).
 
-        sensed [B, C] normalized context, query [B, D_q], alphas [B, S] per-skill relevance, active [S] bool.
-        The weights are None when nothing is re-weighted (gate closed everywhere, every context valid, no skill
-        pruned): the pool then computes the plain CODA prompt, and the gate-closed path costs E_c and the gate
-        test only.
+        sensed [B, C] normalized context, query [B, D_q], alphas [B, S] per-skill relevance (or a function giving
+        it), active [S] bool (not pruned). The weights are None when nothing is re-weighted (the gate closed
+        everywhere, every context valid, no skill pruned): the pool then computes the plain CODA prompt, and this
+        gate-closed path costs E_c and the gate test only.
         """
         cfg = self.config
         c_raw = self.raw_context(sensed, query)
-        mu, sigma2, valid = self.encode(c_raw)
-        if self._sigma_history and self._sigma_history[-1].shape != sigma2.shape:
-            self._sigma_history.clear()
-        self._sigma_history.append(sigma2)
-        sigma2_gate = sigma2 if len(self._sigma_history) == 1 else torch.stack(list(self._sigma_history)).mean(0)
-        tau = self.threshold()
+        self.gate.ensure_fresh(self.encoder)
+        mu, sigma2 = self.encoder.code_and_sigma2(c_raw, self.gate.dim_weights)
+        sigma2_gate = None
+        if cfg.context_window > 1:
+            if self._sigma_history and self._sigma_history[-1].shape != sigma2.shape:
+                self._sigma_history.clear()
+            self._sigma_history.append(sigma2)
+            sigma2_gate = torch.stack(list(self._sigma_history)).mean(0)
+        tau = self.gate.tau_value
+        # A non-finite sigma^2 fails `<=` and `isfinite`: non-finite contexts and codes open the gate, and are
+        # flagged invalid once it is open (rows are independent, so they spoil no other row).
         if self.gate_override == "open" or not cfg.smart_gate:
-            gate = torch.ones_like(valid)
+            gate = torch.ones_like(sigma2, dtype=torch.bool)
         elif self.gate_override == "closed":
-            gate = torch.zeros_like(valid)
+            gate = ~torch.isfinite(sigma2)
         else:
-            gate = sigma2_gate > tau
-        gate = gate | ~valid
-        energy = torch.full_like(alphas, float("nan"))
-        fast = cfg.force_validity is None and not bool(gate.any()) and bool(active.all())
-        if fast:  # gate closed everywhere: v = 1, plain CODA prompt
-            v = torch.ones_like(alphas)
-            weights = None
-            invalid = torch.zeros_like(alphas, dtype=torch.bool)
-        else:
-            if cfg.force_validity is not None:
-                v = torch.full_like(alphas, cfg.force_validity)
-                invalid = ~valid.unsqueeze(-1).expand_as(v)
-            else:
-                e = self.skill_energies(mu, alphas.shape[1])
-                energy = torch.where(gate.unsqueeze(-1), e, energy)
-                v = torch.where(gate.unsqueeze(-1), validity(e, cfg.gamma, cfg.l0), torch.ones_like(e))
-                invalid = ~valid.unsqueeze(-1) | (gate.unsqueeze(-1) & ~torch.isfinite(e))
-            v = torch.where(invalid | ~active.unsqueeze(0), torch.zeros_like(v), v)
-            weights = fuse_weights(v, alphas, cfg.fusion_renormalize, cfg.fusion_eps)
-        telemetry = KvmStepTelemetry(
+            gate = ~((sigma2 if sigma2_gate is None else sigma2_gate) <= tau)
+        if all_active is None:
+            all_active = bool(active.all())
+        common = dict(
             sigma2=sigma2,
             sigma2_gate=sigma2_gate,
-            tau=tau.clone(),
+            tau=tau,
             gate=gate,
-            alpha=alphas,
-            energy=energy,
-            validity=v,
-            skill_weight=torch.ones_like(alphas) if weights is None else weights,
-            invalid=invalid,
             active=active,
             tau_v=cfg.tau_v,
             candidate_min_alpha=cfg.candidate_min_alpha,
+        )
+        if cfg.force_validity is None and all_active and not bool(gate.any()):
+            return None, KvmStepTelemetry(alpha=alphas, **common)  # gate closed: v = 1, plain CODA prompt
+        alphas = alphas() if callable(alphas) else alphas
+        valid = torch.isfinite(sigma2)
+        energy = torch.full_like(alphas, float("nan"))
+        if cfg.force_validity is not None:
+            v = torch.full_like(alphas, cfg.force_validity)
+            invalid = ~valid.unsqueeze(-1).expand_as(v)
+        else:
+            e = self.skill_energies(mu, alphas.shape[1])
+            energy = torch.where(gate.unsqueeze(-1), e, energy)
+            v = torch.where(gate.unsqueeze(-1), validity(e, cfg.gamma, cfg.l0), torch.ones_like(e))
+            invalid = ~valid.unsqueeze(-1) | (gate.unsqueeze(-1) & ~torch.isfinite(e))
+        v = torch.where(invalid | ~active.unsqueeze(0), torch.zeros_like(v), v)
+        weights = fuse_weights(v, alphas, cfg.fusion_renormalize, cfg.fusion_eps)
+        telemetry = KvmStepTelemetry(
+            alpha=alphas, energy=energy, validity=v, skill_weight=weights, invalid=invalid, **common
         )
         return weights, telemetry
 
@@ -211,13 +230,13 @@ class KnowledgeValidityModule(nn.Module):
     ) -> tuple[Tensor, dict[str, Tensor]]:
         """recon + L_contrast + lambda * L_energy + BCE on one set of safe and hazardous (context, skill) pairs."""
         cfg = self.config
-        mu_s, sigma2_s, _ = self.encode(safe_c)
+        mu_s, parts_s, _ = self._encode_parts(safe_c)
         h_s = self.joint(mu_s, safe_s)
         e_s = self.energy(h_s)
         zero = safe_c.new_zeros(())
-        recon = sigma2_s[routine].mean() if bool(routine.any()) else zero
+        recon = self.encoder.recon_loss(parts_s[routine]).mean() if bool(routine.any()) else zero
         if len(fail_c):
-            mu_f, _, _ = self.encode(fail_c)
+            mu_f, _, _ = self._encode_parts(fail_c)
             h_f = self.joint(mu_f, fail_s)
             e_f = self.energy(h_f)
         else:

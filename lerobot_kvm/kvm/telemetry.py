@@ -3,6 +3,7 @@
 Every tensor is detached; shapes use B (batch of environments) and S (skills begun in the pool).
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -10,20 +11,82 @@ import torch
 from torch import Tensor
 
 
-@dataclass
 class KvmStepTelemetry:
-    sigma2: Tensor  # [B] sigma_c^2 of the current frame
-    sigma2_gate: Tensor  # [B] what the gate compared (mean over the last `context_window` frames)
-    tau: Tensor  # [] tau_adaptive (eq. 1); -inf while there are no statistics yet
-    gate: Tensor  # [B] bool: full assessment ran
-    alpha: Tensor  # [B, S] per-skill CODA relevance alpha_i
-    energy: Tensor  # [B, S] E_theta(h_i) (or the classifier's energy-equivalent); NaN where not assessed
-    validity: Tensor  # [B, S] v_i (1 where the gate was closed, 0 where invalid or pruned)
-    skill_weight: Tensor  # [B, S] weight given to the pool (eq. 3 re-weighting, see kvm.fusion)
-    invalid: Tensor  # [B, S] bool: non-finite context, code or energy -> v_i = 0 (fail-safe)
-    active: Tensor  # [S] bool: skills not pruned
-    tau_v: float = 0.1
-    candidate_min_alpha: float = 0.2
+    """One KVM assessment. Tensors a closed gate leaves at their defaults (energy NaN, v = 1, skill weight 1, not
+    invalid) and the relevances are materialised only when read, so the control loop pays for what callers use.
+
+    sigma2 [B]: sigma_c^2 of the current frame; sigma2_gate [B]: what the gate compared (mean over the last
+    `context_window` frames); tau []: tau_adaptive (eq. 1), -inf while there are no statistics; gate [B] bool:
+    full assessment ran; alpha [B, S]: per-skill CODA relevance alpha_i; energy [B, S]: E_theta(h_i) (or the
+    classifier's energy-equivalent), NaN where not assessed; validity [B, S]: v_i (1 where the gate was closed, 0
+    where invalid or pruned); skill_weight [B, S]: weight given to the pool (see kvm.fusion); invalid [B, S] bool:
+    non-finite context, code or energy -> v_i = 0 (fail-safe); active [S] bool: skills not pruned.
+    """
+
+    FIELDS = ("sigma2", "sigma2_gate", "tau", "gate", "alpha", "energy", "validity", "skill_weight", "invalid")
+    PER_ROW = ("sigma2", "sigma2_gate", "gate", "alpha", "energy", "validity", "skill_weight", "invalid")
+
+    def __init__(
+        self,
+        sigma2: Tensor,
+        tau: Tensor,
+        gate: Tensor,
+        alpha: Tensor | Callable[[], Tensor],
+        active: Tensor,
+        sigma2_gate: Tensor | None = None,
+        energy: Tensor | None = None,
+        validity: Tensor | None = None,
+        skill_weight: Tensor | None = None,
+        invalid: Tensor | None = None,
+        tau_v: float = 0.1,
+        candidate_min_alpha: float = 0.2,
+    ) -> None:
+        self.sigma2 = sigma2
+        self.tau = tau
+        self.gate = gate
+        self._alpha = alpha
+        self.active = active
+        self._sigma2_gate = sigma2_gate
+        self._energy = energy
+        self._validity = validity
+        self._skill_weight = skill_weight
+        self._invalid = invalid
+        self.tau_v = tau_v
+        self.candidate_min_alpha = candidate_min_alpha
+
+    @property
+    def alpha(self) -> Tensor:
+        if callable(self._alpha):
+            self._alpha = self._alpha()
+        return self._alpha
+
+    @property
+    def sigma2_gate(self) -> Tensor:
+        return self.sigma2 if self._sigma2_gate is None else self._sigma2_gate
+
+    @property
+    def energy(self) -> Tensor:
+        if self._energy is None:
+            self._energy = torch.full_like(self.alpha, float("nan"))
+        return self._energy
+
+    @property
+    def validity(self) -> Tensor:
+        if self._validity is None:
+            self._validity = torch.ones_like(self.alpha)
+        return self._validity
+
+    @property
+    def skill_weight(self) -> Tensor:
+        if self._skill_weight is None:
+            self._skill_weight = torch.ones_like(self.alpha)
+        return self._skill_weight
+
+    @property
+    def invalid(self) -> Tensor:
+        if self._invalid is None:
+            self._invalid = torch.zeros_like(self.alpha, dtype=torch.bool)
+        return self._invalid
 
     # Derived values are computed on access, so that the control loop only pays for what a caller reads.
     @property
@@ -77,9 +140,15 @@ class KvmStepTelemetry:
         }
 
     def select(self, b: int) -> "KvmStepTelemetry":
-        per_row = ("sigma2", "sigma2_gate", "gate", "alpha", "energy", "validity", "skill_weight", "invalid")
-        values = {name: getattr(self, name) for name in self.__dataclass_fields__}
-        return KvmStepTelemetry(**{k: v[b : b + 1] if k in per_row else v for k, v in values.items()})
+        """The telemetry of environment b alone."""
+        values = {name: getattr(self, name) for name in self.PER_ROW}
+        return KvmStepTelemetry(
+            tau=self.tau,
+            active=self.active,
+            tau_v=self.tau_v,
+            candidate_min_alpha=self.candidate_min_alpha,
+            **{k: v[b : b + 1] for k, v in values.items()},
+        )
 
 
 @dataclass

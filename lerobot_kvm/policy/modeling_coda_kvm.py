@@ -119,8 +119,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
     def kvm_prune_skill(self, index: int) -> None:
         """Deactivate a skill (weight 0 in the fused prompt while the KVM is enabled); recoverable."""
         self._check_skill_index(index)
-        with torch.no_grad():
-            self.kvm.metabolism.pruned[index] = 1
+        self.kvm.metabolism.prune(index)
         self.reset()
 
     def kvm_restore_skill(self, index: int) -> None:
@@ -241,6 +240,8 @@ class CodaKvmPolicy(PreTrainedPolicy):
             raise ValueError(f"reduction must be 'mean' or 'none', got {reduction!r}")
         batch_size = self._check_observation(batch)
         query = self.encode_query(self._tasks(batch, batch_size))
+        if skill_weights is None and self.training and self.config.skill_dropout > 0 and self.n_skills > 1:
+            skill_weights = self._skill_dropout_weights(batch_size, query.device)
         pred = self._decode(batch, self.pool.component_alphas(query), skill_weights)
         target, valid = self._check_action(batch, pred.shape[0])
         err = (pred - target).abs() * valid.unsqueeze(-1)
@@ -257,6 +258,13 @@ class CodaKvmPolicy(PreTrainedPolicy):
             loss = loss + self.config.kvm.loss_weight * kvm_loss
             info.update(kvm_info)
         return loss, info
+
+    def _skill_dropout_weights(self, batch_size: int, device: torch.device) -> Tensor:
+        """[B, n_skills] ones, with the earlier skills zeroed for a random `skill_dropout` share of the samples."""
+        weights = torch.ones(batch_size, self.n_skills, device=device)
+        alone = torch.rand(batch_size, device=device) < self.config.skill_dropout
+        weights[alone, :-1] = 0.0
+        return weights
 
     def kvm_learn_offline(self, batch: dict[str, Any]) -> tuple[Tensor, dict[str, float]]:
         """The KVM's offline learning step alone (the term `forward()` adds to the action loss in training):
@@ -369,8 +377,13 @@ class CodaKvmPolicy(PreTrainedPolicy):
         batch_size = self._check_observation(batch)
         query = self.encode_query(self._tasks(batch, batch_size))
         alphas = self.pool.component_alphas(query)
+        n = self.n_skills
         weights, telemetry = self.kvm.assess(
-            batch[self.config.context_key], query, self.pool.relevance_from_alphas(alphas), self.kvm_active_skills()
+            batch[self.config.context_key],
+            query,
+            lambda: self.pool.relevance_from_alphas(alphas),  # per-skill relevance, only computed when needed
+            self.kvm.metabolism.active(n),
+            self.kvm.metabolism.all_active(n),
         )
         return alphas, weights, telemetry
 

@@ -7,18 +7,18 @@ TASK = "cracker_vs_bread"
 
 
 def run_expert(variant: str, skill: str, seed: int = 0):
-    """Run a scripted expert; returns the last info, the env (open) and the hand heights while stroking."""
+    """Run a scripted expert; returns the last info, the env (open) and the contexts while stroking."""
     env = KvmObsolescenceEnv(task=TASK, variant=variant)
     env.reset(seed=seed)
     expert = env.scenario.expert(skill)
-    stroke_z = []
+    stroke = []
     for _ in range(env._max_episode_steps):
         obs, _, terminated, truncated, info = env.step(expert.act(env))
         if expert.phase == "stroke":
-            stroke_z.append(obs["agent_pos"][2])
+            stroke.append(obs["context"])
         if terminated or truncated:
             break
-    return info, env, np.array(stroke_z)
+    return info, env, np.array(stroke)
 
 
 def flattening(env) -> float:
@@ -43,11 +43,12 @@ def test_gentle_spread_covers_the_bread_without_crushing_it():
     assert flattening(env) == 0.0
 
 
-def test_bread_gives_way_under_the_same_light_force():
-    """Rule 3: regulating the same light wrist force, the spreader sinks further into the bread."""
+def test_bread_pushes_back_less_at_the_same_depth():
+    """Rule 3: pressed the same 2 mm past first contact, soft bread loads the wrist far less than a cracker."""
     _, _, cracker = run_expert("prior", "gentle_spread")
     _, _, bread = run_expert("shifted", "gentle_spread")
-    assert cracker.mean() - bread.mean() > 0.001
+    wrist_force_z = 2  # the surface pushing up on the tool lowers this reading
+    assert bread[:, wrist_force_z].mean() - cracker[:, wrist_force_z].mean() > 0.4
 
 
 def test_a_different_slice_in_view_and_in_words():

@@ -6,6 +6,7 @@ import pytest
 import torch
 from torch import nn
 
+from lerobot_kvm.kvm.context_encoder import ContextEncoder
 from lerobot_kvm.kvm.energy import EnergyModel, RiskClassifier, validity
 from lerobot_kvm.kvm.fusion import fuse_weights
 from lerobot_kvm.kvm.gate import SmartGate, adaptive_threshold
@@ -21,22 +22,45 @@ def test_eq1_adaptive_threshold_is_mean_plus_k_population_std() -> None:
     assert tau.item() == pytest.approx(2.5 + 3 * math.sqrt(1.25))
 
 
-class _FirstColumnIsSigma(nn.Module):
-    """A stand-in encoder whose sigma^2 is the first column of the raw context."""
+class _FirstColumnIsTheResidual(nn.Module):
+    """A stand-in encoder: one modality whose mean squared residual is the first column of the raw context."""
 
     def forward(self, c_raw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return c_raw, c_raw[:, 0]
+        return c_raw, c_raw[:, :1]
+
+    def sigma2(self, parts: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+        return (parts / scale).sum(-1)
+
+    def dim_weights(self, scale: torch.Tensor) -> torch.Tensor:
+        return torch.tensor([1.0 / float(scale[0]), 0.0])
 
 
 def test_eq1_gate_uses_the_last_n_successful_interactions() -> None:
-    gate = SmartGate(window=4, raw_dim=2, k=3.0, min_count=3)
-    enc = _FirstColumnIsSigma()
+    gate = SmartGate(window=4, raw_dim=2, k=3.0, min_count=3, n_parts=1)
+    enc = _FirstColumnIsTheResidual()
     gate.push(torch.tensor([[9.0, 0.0], [1.0, 0.0]]))
     assert gate.threshold(enc).item() == float("-inf")  # fewer than min_count: no statistics, always assess
     gate.push(torch.tensor([[2.0, 0.0], [3.0, 0.0], [4.0, 0.0]]))  # the ring drops the oldest (9.0)
     assert len(gate.window) == 4
-    assert gate.threshold(enc).item() == pytest.approx(2.5 + 3 * math.sqrt(1.25))
-    assert gate.stats[1].item() == pytest.approx(2.5) and gate.stats[2].item() == pytest.approx(math.sqrt(1.25))
+    # residuals 1, 2, 3, 4 in units of their mean 2.5: sigma^2 = 0.4, 0.8, 1.2, 1.6
+    assert gate.threshold(enc).item() == pytest.approx(1.0 + 3 * math.sqrt(1.25) / 2.5)
+    assert gate.scale.tolist() == [2.5]
+    assert gate.stats[1].item() == pytest.approx(1.0) and gate.stats[2].item() == pytest.approx(math.sqrt(1.25) / 2.5)
+
+
+def test_sigma2_is_the_residual_of_each_modality_in_units_of_its_safe_scale() -> None:
+    enc = ContextEncoder(sensed_dim=2, query_dim=4, hidden=[8], latent_dim=3, use_query=True, query_weight=0.5)
+    parts = torch.tensor([[0.2, 0.01], [0.1, 0.0]])
+    torch.testing.assert_close(enc.sigma2(parts, torch.tensor([0.1, 0.001])), torch.tensor([2.0 + 5.0, 1.0]))
+    torch.testing.assert_close(enc.recon_loss(parts), torch.tensor([0.205, 0.1]))
+    c_raw = enc.raw_context(torch.zeros(1, 2), torch.ones(1, 4) / 2)
+    assert c_raw.tolist() == [[0.0, 0.0, 1.0, 1.0, 1.0, 1.0]]  # the unit query rescaled by sqrt(D_q)
+    mu, parts = enc(c_raw)
+    recon = enc.decoder(mu)
+    scale = torch.tensor([0.3, 0.02])
+    torch.testing.assert_close(((c_raw - recon) ** 2) @ enc.dim_weights(scale), enc.sigma2(parts, scale))
+    torch.testing.assert_close(parts[0, 0], ((c_raw - recon)[0, :2] ** 2).mean())
+    torch.testing.assert_close(parts[0, 1], ((c_raw - recon)[0, 2:] ** 2).mean())
 
 
 @pytest.mark.parametrize(
@@ -72,15 +96,15 @@ def test_bounded_energy_never_exceeds_e_max() -> None:
 def test_eq3_fusion_is_identity_at_v_one_and_renormalises_suppression() -> None:
     alphas = torch.tensor([[0.5, -1.5, 2.0]])
     ones = torch.ones(1, 3)
-    assert torch.equal(fuse_weights(ones, alphas), ones)  # exactly: S / S = 1.0
-    w = fuse_weights(torch.tensor([[0.0, 1.0, 1.0]]), alphas)
+    v = torch.tensor([[0.0, 1.0, 0.5]])
+    assert torch.equal(fuse_weights(v, alphas), v)  # default: w_i = v_i * alpha_i
+    assert torch.equal(fuse_weights(ones, alphas, renormalize=True), ones)  # exactly: S / S = 1.0
+    w = fuse_weights(torch.tensor([[0.0, 1.0, 1.0]]), alphas, renormalize=True)
     torch.testing.assert_close(w, torch.tensor([[0.0, 4.0 / 3.5, 4.0 / 3.5]]))
-    w = fuse_weights(torch.tensor([[0.5, 1.0, 0.25]]), alphas)
+    w = fuse_weights(torch.tensor([[0.5, 1.0, 0.25]]), alphas, renormalize=True)
     kept = 0.5 * 0.5 + 1.5 + 0.25 * 2.0
     torch.testing.assert_close(w, torch.tensor([[0.5, 1.0, 0.25]]) * 4.0 / kept)
-    assert torch.equal(fuse_weights(torch.zeros(1, 3), alphas), torch.zeros(1, 3))  # all invalid: nothing
-    v = torch.tensor([[0.0, 1.0, 1.0]])
-    assert torch.equal(fuse_weights(v, alphas, renormalize=False), v)
+    assert torch.equal(fuse_weights(torch.zeros(1, 3), alphas, renormalize=True), torch.zeros(1, 3))
 
 
 def test_eq3_fused_prompt_is_the_weighted_sum_of_skill_contributions() -> None:
@@ -92,10 +116,11 @@ def test_eq3_fused_prompt_is_the_weighted_sum_of_skill_contributions() -> None:
     contributions = pool.skill_prompts(query)  # [L, B, S, Lp, D]
     alphas = pool.skill_relevance(query)
     v = torch.tensor([[0.0, 1.0, 1.0], [1.0, 0.2, 1.0]])
-    weights = fuse_weights(v, alphas)
-    expected = (contributions * weights[None, :, :, None, None]).sum(2)
-    torch.testing.assert_close(pool(query, weights), expected)
-    assert torch.equal(pool(query, fuse_weights(torch.ones(2, 3), alphas)), pool(query))
+    for renormalize in (False, True):
+        weights = fuse_weights(v, alphas, renormalize)
+        expected = (contributions * weights[None, :, :, None, None]).sum(2)
+        torch.testing.assert_close(pool(query, weights), expected)
+        assert torch.equal(pool(query, fuse_weights(torch.ones(2, 3), alphas, renormalize)), pool(query))
 
 
 def test_eq5_triplet_loss_hand_values() -> None:

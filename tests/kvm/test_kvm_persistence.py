@@ -99,7 +99,10 @@ def test_every_piece_of_kvm_memory_survives_save_and_load(
     batch = make_batch(policy.config, task=EGG, with_action=False)
     assert torch.equal(loaded.predict_action_chunk(batch), policy.predict_action_chunk(batch))
     for name in ("sigma2", "tau", "gate", "energy", "validity", "skill_weight"):
-        a, b = getattr(policy.kvm_telemetry, name), getattr(loaded.kvm_telemetry, name)
+        a, b = (
+            torch.as_tensor(getattr(policy.kvm_telemetry, name)),
+            torch.as_tensor(getattr(loaded.kvm_telemetry, name)),
+        )
         assert torch.equal(torch.nan_to_num(a), torch.nan_to_num(b)), name
 
 

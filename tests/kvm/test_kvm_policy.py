@@ -212,3 +212,16 @@ def test_overhead_measures_three_modes_on_the_same_inputs(make_policy, make_batc
     assert result["gate_open_check"] == {"off": False, "closed": False, "open": True}
     assert result["ratio_gate_closed"] > 0 and result["ratio_gate_open"] > 0
     assert policy.config.kvm.enabled and policy.kvm.gate_override is None  # settings restored
+
+
+def test_skill_dropout_trains_the_current_skill_alone_on_some_samples(make_policy, make_batch) -> None:
+    policy = make_policy(skill_dropout=0.5)
+    policy.begin_new_skill("gentle_grasp")
+    torch.manual_seed(3)
+    weights = policy._skill_dropout_weights(1000, torch.device("cpu"))
+    assert (weights[:, 1] == 1).all() and 0.4 < float((weights[:, 0] == 0).float().mean()) < 0.6
+    policy.train()
+    loss, _ = policy.forward(make_batch(policy.config))
+    assert torch.isfinite(loss)
+    with pytest.raises(ValueError, match="skill_dropout"):
+        make_policy(skill_dropout=1.0)

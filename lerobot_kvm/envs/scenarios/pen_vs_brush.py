@@ -18,7 +18,8 @@ PAPER_HALF = (0.07, 0.05, 0.0005)
 PAPER_TOP = 2 * PAPER_HALF[2]
 TIP_BELOW_HAND = 0.102  # the tip's lowest point below the hand origin at rest
 STROKE = 0.05
-BINS = 10
+BINS = 10  # the line in 5 mm bins; success: at least COVER of them drawn
+COVER = 9
 CONTACT_N = 0.1  # tip-on-paper force that leaves a mark
 TIP_RGB = {"prior": np.array([0.15, 0.18, 0.45]), "shifted": np.array([0.12, 0.12, 0.14])}
 BARREL_RGB = {"prior": np.array([0.20, 0.35, 0.75]), "shifted": np.array([0.22, 0.38, 0.72])}
@@ -44,7 +45,7 @@ class PenVsBrush(Scenario):
         harm="damage",
         what_changes="a brush whose bristles bend permanently above about 1 N replaces a ballpoint pen of the "
         "same shape and a similar colour",
-        success=f"a {STROKE * 100:.0f} cm line drawn with the tip on the paper, the tool undamaged",
+        success=f"a {STROKE * 100 * COVER / BINS:.1f} cm line drawn with the tip on the paper, the tool undamaged",
         max_steps=100,
     )
 
@@ -84,6 +85,7 @@ class PenVsBrush(Scenario):
         # nuisance: where on the sheet the line starts
         self.start = np.array([self._paper_x - STROKE / 2, 0.0]) + rng.uniform(-0.012, 0.012, 2)
         self.covered = np.zeros(BINS, dtype=bool)
+        self._last_x: float | None = None  # tip position at the previous step, if it was touching then
         self.bend = 0.0
         self.force = 0.0
 
@@ -93,38 +95,39 @@ class PenVsBrush(Scenario):
         if self.bend > BENT:
             return StepOutcome(catastrophe="damage")
         self.force = contact_normal_force(d, m, self._paper, self._tip)
-        if self.force > CONTACT_N:
-            tip_x = d.geom("tool_tip").xpos[0] - self.start[0]
-            k = int(np.floor(tip_x / STROKE * BINS))
-            if 0 <= k < BINS:
-                self.covered[k] = True
-        return StepOutcome(success=bool(self.covered.all()))
+        x = None
+        if self.force > CONTACT_N:  # drawn along the way since the previous step if touching at both ends
+            x = (d.geom("tool_tip").xpos[0] - self.start[0]) / STROKE * BINS
+            lo, hi = sorted((x, x if self._last_x is None else self._last_x))
+            self.covered[max(0, int(np.floor(lo))) : max(0, min(BINS, int(np.floor(hi)) + 1))] = True
+        self._last_x = x
+        return StepOutcome(success=bool(self.covered.sum() >= COVER))
 
     def expert(self, skill: str) -> Expert:
         if skill == "press_stroke":
             return StrokeExpert(press_depth=0.006)
         if skill == "light_stroke":
-            return StrokeExpert(press_force=0.5)
+            return StrokeExpert(press_depth=0.002)
         raise ValueError(f"pen_vs_brush has no skill {skill!r}; it has ['light_stroke', 'press_stroke']")
 
 
 class StrokeExpert(Expert):
     """Hover over the line's start, descend until the wrist feels contact, press, draw along +x.
 
-    Pressing: command the hand `press_depth` below the contact height (the position loop then
-    presses with up to kp * depth). Light: regulate the sensed contact force to `press_force` by
-    nudging the height target (an admittance loop on the wrist force sensor).
+    A guarded move: the contact height is where the wrist force sensor first feels the paper; the
+    hand is then commanded `press_depth` below it. The position loop (1500 N/m) in series with the
+    tool's tip presses with about 1.2 N (2 mm, light) or up to ~8 N (6 mm, pressing) on the stiff
+    ballpoint, and far less on the soft brush, whose bristles give way.
     """
 
     HOVER = 0.012
     DESCEND = 0.001  # m per step near the paper
     STROKE_STEP = 0.003
-    FORCE_GAIN = 0.0002  # m of height target per N of force error and step
 
-    def __init__(self, press_depth: float | None = None, press_force: float | None = None) -> None:
-        self.press_depth, self.press_force = press_depth, press_force
+    def __init__(self, press_depth: float) -> None:
+        self.press_depth = press_depth
         self.phase = "approach"
-        self.target = np.zeros(3)
+        self.target: np.ndarray | None = None  # set from the hand's position on the first step
         self.baseline = 0.0
         self.contact_z = 0.0
         self.timer = 0
@@ -137,7 +140,7 @@ class StrokeExpert(Expert):
         d = env.data
         pos = env.sensors.arm_position(d)
         self.timer += 1
-        if self.timer == 1:
+        if self.target is None:
             self.target = pos[:3].copy()
         start = env.scenario.start  # where the line is to begin (the demonstrator sees the sheet)
         hover = np.array([start[0] - 0.002, start[1], PAPER_TOP + TIP_BELOW_HAND + self.HOVER])
@@ -151,13 +154,10 @@ class StrokeExpert(Expert):
                 self.baseline = float(d.sensor("wrist_force").data[2])
             if self.timer > 4 and self._contact_force(env) > 0.08:
                 self.contact_z = pos[2]
+                self.target[2] = pos[2]  # start pressing from where the tool met the surface
                 self.phase, self.timer = "press", 0
         elif self.phase in ("press", "stroke"):
-            if self.press_depth is not None:
-                self.target[2] = max(self.target[2] - 0.003, self.contact_z - self.press_depth)
-            else:
-                err = self._contact_force(env) - self.press_force
-                self.target[2] += np.clip(self.FORCE_GAIN * err, -0.0005, 0.0005)
+            self.target[2] = max(self.target[2] - 0.003, self.contact_z - self.press_depth)
             if self.phase == "press" and self.timer > 4:
                 self.phase = "stroke"
             if self.phase == "stroke":
