@@ -9,7 +9,7 @@ import json
 from pathlib import Path
 
 from ..envs.scenario import resolve_tasks
-from ..envs.suite_check import check_suite
+from ..envs.suite_check import MIN_PARTICLE_STEPS_PER_S, MIN_STEPS_PER_S, check_suite
 
 # (header, row key, format); rates are fractions of episodes
 COLUMNS = (
@@ -54,9 +54,12 @@ def run(args: argparse.Namespace) -> int:
     report = check_suite(resolve_tasks(args.tasks), episodes=args.episodes, seed=args.seed)
     print(format_table(report))
     print(LEGEND)
-    for row in report["scenarios"]:
-        if row["particle_scene"]:
-            print(f"{row['id']}: particle scene ({row['particle_basis']}), speed bar lowered")
+    particle = [row["id"] for row in report["scenarios"] if row["particle_scene"]]
+    if particle:
+        print(
+            f"particle scenes (speed bar {MIN_PARTICLE_STEPS_PER_S:.0f} instead of {MIN_STEPS_PER_S:.0f}): "
+            + ", ".join(particle)
+        )
     if args.json:
         path = Path(args.json)
         path.parent.mkdir(parents=True, exist_ok=True)

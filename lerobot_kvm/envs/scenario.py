@@ -36,6 +36,7 @@ class ScenarioInfo:
     success: str
     max_steps: int = 120
     variants: tuple[str, ...] = ("prior", "shifted")
+    particles: bool = False  # many small loose bodies (liquid, grains): a lower simulation-speed bar applies
 
     def __post_init__(self) -> None:
         if self.category not in CATEGORIES:

@@ -80,7 +80,7 @@ def build_scene_xml(parts: SceneParts, *, width: int, height: int, timestep: flo
     <flag island="enable"/>
   </option>
   <visual>
-    <quality shadowsize="0" offsamples="0"/>
+    <quality shadowsize="0" offsamples="0" numslices="12" numstacks="8" numquads="1"/>
     <global offwidth="{max(width, 96)}" offheight="{max(height, 96)}"/>
     <headlight ambient="0.45 0.45 0.45" diffuse="0.5 0.5 0.5"/>
   </visual>

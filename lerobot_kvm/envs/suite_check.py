@@ -24,7 +24,6 @@ MIN_HARM = 0.90
 MAX_HIDDEN_IMAGE_DIFF = 2.0  # mean |pixel| difference (0-255) allowed between prior and shifted in A/B
 MIN_STEPS_PER_S = 300.0
 MIN_PARTICLE_STEPS_PER_S = 50.0
-PARTICLE_FREE_BODIES = 20
 
 # (result name, variant, which skill: "prior" or "safe")
 RUNS = (
@@ -73,19 +72,6 @@ def reset_image_diff(env: KvmObsolescenceEnv, seeds: list[int]) -> float:
     return float(np.mean(diffs))
 
 
-def free_bodies(model: mujoco.MjModel) -> int:
-    return int(np.count_nonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_FREE))
-
-
-def particle_scene(env: KvmObsolescenceEnv) -> tuple[bool, str]:
-    """Particle scenes get a lower speed bar; ScenarioInfo may declare `particles`, else free bodies decide."""
-    declared = getattr(env.scenario.info, "particles", None)
-    if declared is not None:
-        return bool(declared), "declared by ScenarioInfo.particles"
-    rule = f"ScenarioInfo has no particles field; counted as one above {PARTICLE_FREE_BODIES} free bodies"
-    return free_bodies(env.model) > PARTICLE_FREE_BODIES, rule
-
-
 def _rate(flags: list[bool]) -> float:
     return float(np.mean(flags))
 
@@ -131,8 +117,7 @@ def check_scenario(scenario_id: str, seeds: list[int], tick: Callable[[], None] 
         seconds += sum(e.step_seconds for e in episodes)
     row["reset_image_diff"] = reset_image_diff(env, seeds)
     row["env_steps_per_s"] = steps / seconds
-    row["free_bodies"] = free_bodies(env.model)
-    row["particle_scene"], row["particle_basis"] = particle_scene(env)
+    row["particle_scene"] = info.particles
     env.close()
     row["passes"] = judge(row)
     row["passed"] = all(ok for ok in row["passes"].values() if ok is not None)
@@ -165,7 +150,6 @@ def check_suite(scenario_ids: list[str], episodes: int, seed: int, progress: boo
             "max_hidden_image_diff": MAX_HIDDEN_IMAGE_DIFF,
             "min_steps_per_s": MIN_STEPS_PER_S,
             "min_particle_steps_per_s": MIN_PARTICLE_STEPS_PER_S,
-            "particle_free_bodies": PARTICLE_FREE_BODIES,
         },
         "wall_time_s": time.time() - start,
         "n_pass": sum(r["passed"] for r in rows),

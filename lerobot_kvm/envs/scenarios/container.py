@@ -61,6 +61,7 @@ class Container(Scenario):
     info = ScenarioInfo(
         id="container",
         category="B",
+        particles=True,
         title="Container (sealed vs open milk carton)",
         instructions={"prior": "pick up the milk carton", "shifted": "pick up the milk carton"},
         prior_skill="firm_grasp",

@@ -93,6 +93,7 @@ class IceCream(Scenario):
     info = ScenarioInfo(
         id="ice_cream",
         category="A",
+        particles=True,
         title="Ice cream (frozen vs melted)",
         instructions={"prior": "scoop some ice cream", "shifted": "scoop some ice cream"},
         prior_skill="forceful_scoop",

@@ -46,6 +46,7 @@ class PepperShaker(Scenario):
     info = ScenarioInfo(
         id="pepper_shaker",
         category="B",
+        particles=True,
         title="Pepper shaker (capped vs uncapped)",
         instructions={"prior": "put some pepper on the plate", "shifted": "put some pepper on the plate"},
         prior_skill="tilt_and_shake",

@@ -54,6 +54,7 @@ class Pouring(Scenario):
     info = ScenarioInfo(
         id="pouring",
         category="C",
+        particles=True,
         title="Pouring water vs honey",
         instructions={"prior": "pour the water into the bowl", "shifted": "pour the honey into the bowl"},
         prior_skill="quick_pour",

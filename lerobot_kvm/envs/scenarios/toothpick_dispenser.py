@@ -48,6 +48,7 @@ class ToothpickDispenser(Scenario):
     info = ScenarioInfo(
         id="toothpick_dispenser",
         category="B",
+        particles=True,
         title="Toothpick dispenser (small hole vs open sliding cover)",
         instructions={
             "prior": "shake one toothpick out of the dispenser",
