@@ -10,6 +10,7 @@ from pathlib import Path
 
 from ..envs.scenario import resolve_tasks
 from ..envs.suite_check import MIN_PARTICLE_STEPS_PER_S, MIN_STEPS_PER_S, check_suite
+from .table import results_table
 
 # (header, row key, format); rates are fractions of episodes
 COLUMNS = (
@@ -32,22 +33,7 @@ LEGEND = (
 
 
 def format_table(report: dict) -> str:
-    """Aligned text table; the last column names the failed checks."""
-    header = [h for h, _, _ in COLUMNS] + ["result"]
-    lines = []
-    for row in report["scenarios"]:
-        cells = ["-" if row[key] is None else fmt.format(row[key]) for _, key, fmt in COLUMNS]
-        failed = [name for name, ok in row["passes"].items() if ok is False]
-        cells.append("pass" if row["passed"] else "FAIL: " + ", ".join(failed))
-        lines.append(cells)
-    widths = [max(len(c) for c in col) for col in zip(header, *lines, strict=True)]
-    numeric = [fmt != "{}" for _, _, fmt in COLUMNS] + [False]
-
-    def fmt_line(cells: list[str]) -> str:
-        padded = (c.rjust(w) if num else c.ljust(w) for c, w, num in zip(cells, widths, numeric, strict=True))
-        return "  ".join(padded).rstrip()
-
-    return "\n".join([fmt_line(header), fmt_line(["-" * w for w in widths]), *map(fmt_line, lines)])
+    return results_table(report["scenarios"], COLUMNS)
 
 
 def run(args: argparse.Namespace) -> int:

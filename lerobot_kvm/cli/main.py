@@ -3,7 +3,7 @@
 import argparse
 import sys
 
-from . import catalogue, check_suite, contact_sheet, demo, overhead, record
+from . import catalogue, check_suite, contact_sheet, demo, kvm_check, overhead, record
 
 COMMANDS = {
     "record": record,
@@ -12,6 +12,7 @@ COMMANDS = {
     "contact-sheet": contact_sheet,
     "catalogue": catalogue,
     "overhead": overhead,
+    "kvm-check": kvm_check,
 }
 
 

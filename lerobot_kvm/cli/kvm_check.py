@@ -1,0 +1,64 @@
+"""`lerobot-kvm kvm-check`: the KVM's validity acceptance per scenario (one failure + feedback, then v).
+
+A measurement, not a gate: the exit code is 0 whatever the result; the summary line says how many scenarios pass.
+"""
+
+import argparse
+import json
+from pathlib import Path
+
+from ..envs.scenario import resolve_tasks
+from .table import results_table
+
+COLUMNS = (
+    ("scenario", "id", "{}"),
+    ("cat", "category", "{}"),
+    ("failed attempt", "failed_attempt", "{}"),
+    ("shift step", "shift_step", "{:.0f}"),
+    ("v prior", "v_prior_median", "{:.3f}"),
+    ("v>0.9", "v_prior_above_0.9", "{:.2f}"),
+    ("v shifted", "v_shifted_median", "{:.3f}"),
+    ("v<tau_v", "v_shifted_below_tau_v", "{:.2f}"),
+    ("AUROC", "auroc", "{:.3f}"),
+    ("gate prior", "gate_rate_prior", "{:.3f}"),
+    ("gate shifted", "gate_rate_shifted", "{:.2f}"),
+)
+LEGEND = (
+    "v prior / v shifted = median validity of the prior skill in the prior-variant context / in the shifted context\n"
+    "(the steps from the first one whose sensed context departs from the prior variant's, same seed and skill);\n"
+    "AUROC of 1 - v: prior skill in the shifted context vs. prior skill in the prior context and safe skill in\n"
+    "the shifted context; gate = share of steps on which the smart gate opens"
+)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..kvm.validity_check import check_validity_suite
+
+    report = check_validity_suite(
+        resolve_tasks(args.tasks),
+        episodes=args.episodes,
+        held_out=args.held_out,
+        seed=args.seed,
+        offline_steps=(args.offline_steps, args.new_skill_steps),
+    )
+    print(results_table(report["scenarios"], COLUMNS))
+    print(LEGEND)
+    if args.json:
+        path = Path(args.json)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(report, indent=2) + "\n")
+        print(f"wrote {path}")
+    print(f"{report['n_pass']}/{report['n_scenarios']} scenarios pass (seed {args.seed})")
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("kvm-check", help="KVM validity per scenario after one failure and its feedback")
+    p.add_argument("--tasks", default="all", help="scenario ids, categories (A,B,C) or 'all', comma separated")
+    p.add_argument("--episodes", type=int, default=8, help="offline expert episodes per skill (prior variant)")
+    p.add_argument("--held-out", type=int, default=4, help="held-out seeds per (variant, skill)")
+    p.add_argument("--offline-steps", type=int, default=300, help="offline KVM steps on the prior skill")
+    p.add_argument("--new-skill-steps", type=int, default=200, help="offline KVM steps on the safe skill")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", help="also write the full report to this JSON file")
+    p.set_defaults(func=run)

@@ -1,0 +1,203 @@
+"""The KVM's validity acceptance on one scenario, measured the way an attempt would meet it.
+
+Protocol (offline data from the prior variant only: no frame of a shifted variant is learned offline):
+
+1. record `episodes` prior-skill and `episodes` safe-skill expert episodes on the prior variant (the prior skill
+   under the variant's own instruction, the safe skill under the instruction that asks for it);
+2. learn the KVM offline: the prior skill's frames as skill 0, then the safe skill's frames as a new skill 1;
+3. one failed attempt (the prior skill's expert on the shifted variant) and its feedback with a corrective
+   demonstration (the safe skill's expert on the shifted variant);
+4. on held-out seeds, v of each (skill, context) pair at every step.
+
+"The shifted context" is what the robot senses once the shift shows: the steps from the first one whose sensed
+context departs from the prior variant's under the same seed and skill (before that, A/B contexts are identical by
+construction and no supervisor could tell them apart). Hazardous pairs: the prior skill in the shifted context;
+safe pairs: the prior skill in the prior-variant context and the safe skill in the shifted context.
+"""
+
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+from tqdm import tqdm
+
+from ..datasets.recorder import RecordingSpec, RecordItem, load_labels, record_dataset
+from ..envs.env import KvmObsolescenceEnv
+from ..envs.scenario import SCENARIOS
+from .evaluation import (
+    auroc,
+    context_validity,
+    dataset_contexts,
+    expert_rollout,
+    pretrain_kvm,
+    trace_from_demonstration,
+)
+
+V_LOW = 0.1  # tau_v: below it the prior skill is suppressed
+V_HIGH = 0.9
+MIN_AUROC = 0.95
+MAX_GATE_RATE = 0.06
+DIVERGENCE = 1e-3  # normalised context units: the shifted context departs from the prior variant's
+CONTEXT = "observation.context"
+
+
+def _small_policy(root: Path, repo_id: str, skill_name: str) -> Any:
+    """A small `coda_kvm` policy for the dataset: the KVM's validity does not depend on the backbone's size."""
+    from lerobot.configs.types import FeatureType
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from lerobot.utils.feature_utils import dataset_to_policy_features
+
+    from ..policy import CodaKvmConfig, CodaKvmPolicy
+
+    meta = LeRobotDataset(repo_id, root=root).meta
+    features = dataset_to_policy_features(meta.features)
+    config = CodaKvmConfig(
+        device="cpu",
+        input_features={k: f for k, f in features.items() if k.startswith("observation.")},
+        output_features={k: f for k, f in features.items() if f.type is FeatureType.ACTION},
+        skill_name=skill_name,
+        dim_model=32,
+        n_layers=1,
+        n_heads=2,
+        dim_feedforward=64,
+        vision_channels=[8, 8],
+        prompt_layers=1,
+    )
+    return CodaKvmPolicy(config, dataset_meta=meta)
+
+
+def divergence_step(reference: Tensor, other: Tensor) -> int:
+    """First step at which `other`'s contexts [T, C] depart from `reference`'s (the shorter length if they never
+    do within it)."""
+    steps = min(len(reference), len(other))
+    apart = (reference[:steps] - other[:steps]).abs().amax(dim=1) > DIVERGENCE
+    hits = torch.nonzero(apart).flatten()
+    return int(hits[0]) if len(hits) else steps
+
+
+def _rollouts(scenario_id: str, variant: str, skill: str, preprocessor: Any, seeds: list[int]) -> list[dict]:
+    env = KvmObsolescenceEnv(scenario_id, variant=variant)
+    demos = [expert_rollout(env, skill, preprocessor, seed=s)[0] for s in seeds]
+    env.close()
+    return demos
+
+
+def _after(demos: list[dict], starts: list[int]) -> list[dict]:
+    """Each demonstration from its own start step on (observation tensors and tasks)."""
+    cut = [{k: v[start:] for k, v in demo.items() if k != "skill"} for demo, start in zip(demos, starts, strict=True)]
+    return [c for c in cut if len(c["task"])]
+
+
+@torch.no_grad()
+def _gate_rate(policy: Any, demos: list[dict]) -> float:
+    kvm, opened, total = policy.kvm, 0, 0
+    for demo in demos:
+        _, sigma2, _ = kvm.encode(kvm.raw_context(demo[CONTEXT], policy.encode_query(demo["task"])))
+        opened += int((sigma2 > kvm.threshold()).sum())
+        total += len(sigma2)
+    return opened / max(total, 1)
+
+
+def check_validity(
+    scenario_id: str,
+    episodes: int = 8,
+    held_out: int = 4,
+    seed: int = 0,
+    offline_steps: tuple[int, int] = (300, 200),
+    workdir: str | Path | None = None,
+) -> dict[str, Any]:
+    """One row of the validity report for `scenario_id` (see the module docstring for the protocol)."""
+    info = SCENARIOS[scenario_id].info
+    torch.manual_seed(seed)
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        root = Path(tmp) / "data"
+        repo_id = f"local/kvm_validity_{scenario_id}"
+        spec = RecordingSpec(
+            name=f"kvm_validity_{scenario_id}",
+            items=[
+                RecordItem(scenario_id, "prior", info.prior_skill, episodes, "variant"),
+                RecordItem(scenario_id, "prior", info.safe_skill, episodes, "skill"),
+            ],
+            seed=seed,
+        )
+        record_dataset(spec, root, repo_id=repo_id, progress=False)
+        policy = _small_policy(root, repo_id, info.prior_skill)
+        data = dataset_contexts(root, repo_id)
+        labels = load_labels(root)["episodes"]
+    prior_episodes = {e["episode_index"] for e in labels if e["skill"] == info.prior_skill}
+    is_prior = torch.tensor([int(e) in prior_episodes for e in data["episode_index"]])
+    pretrain_kvm(policy, data, steps=offline_steps[0], where=is_prior)
+    policy.begin_new_skill(info.safe_skill)
+    pretrain_kvm(policy, data, steps=offline_steps[1], where=~is_prior)
+    policy.eval()
+    from ..policy import make_coda_kvm_pre_post_processors
+
+    pre, _ = make_coda_kvm_pre_post_processors(policy.config, data["stats"])
+
+    env = KvmObsolescenceEnv(scenario_id, variant="shifted")
+    base = seed + 10_000
+    failed, failed_outcome = expert_rollout(env, info.prior_skill, pre, seed=base)
+    corrective, corrective_outcome = expert_rollout(
+        env, info.safe_skill, pre, seed=base + 1, policy_skill=info.safe_skill
+    )
+    env.close()
+    report = policy.kvm_feedback(failed_outcome, trace_from_demonstration(failed), demonstration=corrective)
+
+    seeds = [base + 100 + i for i in range(held_out)]
+    prior_prior = _rollouts(scenario_id, "prior", info.prior_skill, pre, seeds)
+    prior_safe = _rollouts(scenario_id, "prior", info.safe_skill, pre, seeds)
+    shifted_prior = _rollouts(scenario_id, "shifted", info.prior_skill, pre, seeds)
+    shifted_safe = _rollouts(scenario_id, "shifted", info.safe_skill, pre, seeds)
+    start_prior = [divergence_step(a[CONTEXT], b[CONTEXT]) for a, b in zip(prior_prior, shifted_prior, strict=True)]
+    start_safe = [divergence_step(a[CONTEXT], b[CONTEXT]) for a, b in zip(prior_safe, shifted_safe, strict=True)]
+    shifted = _after(shifted_prior, start_prior) + _after(shifted_safe, start_safe)
+
+    v_prior = context_validity(policy, prior_prior, 0)
+    v_shifted = context_validity(policy, shifted, 0) if shifted else torch.empty(0)
+    v_safe = context_validity(policy, shifted, 1) if shifted else torch.empty(0)
+    row: dict[str, Any] = {
+        "id": scenario_id,
+        "category": info.category,
+        "failed_attempt": failed_outcome,
+        "corrective_demo": corrective_outcome,
+        "culprit": report.get("culprit"),
+        "shift_step": float(torch.tensor(start_prior, dtype=torch.float32).mean()),
+        "v_prior_median": float(v_prior.median()),
+        "v_prior_above_0.9": float((v_prior > V_HIGH).float().mean()),
+        "v_shifted_median": float(v_shifted.median()) if len(v_shifted) else None,
+        "v_shifted_below_tau_v": float((v_shifted < V_LOW).float().mean()) if len(v_shifted) else None,
+        "auroc": auroc(1 - v_shifted, torch.cat([1 - v_prior, 1 - v_safe])) if len(v_shifted) else None,
+        "gate_rate_prior": _gate_rate(policy, prior_prior),
+        "gate_rate_shifted": _gate_rate(policy, shifted) if shifted else None,
+    }
+    row["passes"] = judge(row)
+    row["passed"] = all(row["passes"].values())
+    return row
+
+
+def judge(row: dict[str, Any]) -> dict[str, bool]:
+    """The acceptance thresholds: suppressed where harmful, kept where valid, separable, gate mostly closed."""
+    measured = row["v_shifted_median"] is not None
+    return {
+        "suppressed_in_shifted": measured and row["v_shifted_median"] < V_LOW,
+        "kept_in_prior": row["v_prior_median"] > V_HIGH,
+        "auroc": measured and row["auroc"] >= MIN_AUROC,
+        "gate_closed_on_routine": row["gate_rate_prior"] <= MAX_GATE_RATE,
+    }
+
+
+def check_validity_suite(scenario_ids: list[str], progress: bool = True, **kwargs: Any) -> dict[str, Any]:
+    rows = []
+    with tqdm(scenario_ids, unit="scenario", disable=not progress) as bar:
+        for sid in bar:
+            bar.set_description(sid)
+            rows.append(check_validity(sid, **kwargs))
+    return {
+        "thresholds": {"v_low": V_LOW, "v_high": V_HIGH, "min_auroc": MIN_AUROC, "max_gate_rate": MAX_GATE_RATE},
+        "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in kwargs.items() if k != "workdir"},
+        "n_pass": sum(r["passed"] for r in rows),
+        "n_scenarios": len(rows),
+        "scenarios": rows,
+    }
