@@ -82,7 +82,10 @@ class KvmConfig:
     feedback_steps: int = 100  # default gradient-step budget of one feedback call
     feedback_batch: int = 128
     feedback_lr: float = 1e-3
-    fail_context_steps: int = 10  # the last K steps before a failure are always part of the failure context
+    fail_context_steps: int = 10  # the last K steps before a failure are part of the failure context ...
+    # ... unless they lie inside the culprit's safe experience (see `known_safe`): the quantile of the safe
+    # memory's cross-episode nearest-neighbour distances below which a context counts as already known safe
+    known_safe_quantile: float = 0.95
 
     # ------------------------------------------------------------------ attribution (App. D)
     hypothesis_capacity: int = 64
@@ -169,6 +172,7 @@ class KvmConfig:
             "tau_high": self.tau_high,
             "similarity": self.similarity,
             "prune_threshold": self.prune_threshold,
+            "known_safe_quantile": self.known_safe_quantile,
         }
         for name, value in unit.items():
             if not 0.0 <= value <= 1.0:

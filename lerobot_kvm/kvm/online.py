@@ -285,6 +285,7 @@ def apply_feedback(
         culprit = culprit_skill(w_used, alphas, k)
         context = sigma2 > tau
         context[-k:] = True
+        context &= ~kvm.known_safe(c_raw, culprit)
         hypothesis_id = None
         for h in kvm.hypotheses.ids(skill=culprit):
             if bool(similarity(mu[context], h).any()):
@@ -314,7 +315,7 @@ def apply_feedback(
                 kvm.add_safe(d_raw, skills, routine=False, demo=True)
                 safe_c.append(d_raw)
                 safe_s.append(skills.to(device))
-            unfamiliar = d_sigma2 > tau
+            unfamiliar = (d_sigma2 > tau) & ~kvm.known_safe(d_raw, culprit)
             if bool(unfamiliar.any()):
                 kvm.add_fail(d_raw[unfamiliar], torch.full((int(unfamiliar.sum()),), culprit), hypothesis_id, permanent)
                 fail_c.append(d_raw[unfamiliar])

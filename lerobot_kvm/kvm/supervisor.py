@@ -286,20 +286,28 @@ class KnowledgeValidityModule(nn.Module):
         return torch.cat(parts_c), torch.cat(parts_s)
 
     def offline_step(
-        self, c_raw: Tensor, skills: Tensor, outcome: Tensor, usable: Tensor, active: Tensor
+        self,
+        c_raw: Tensor,
+        skills: Tensor,
+        outcome: Tensor,
+        usable: Tensor,
+        active: Tensor,
+        episodes: Tensor | None = None,
     ) -> tuple[Tensor, dict[str, float]]:
         """One offline learning step on dataset frames (inside `forward()`); also fills the memories.
 
         Safe = frames of successful episodes (of the skill that produced them); hazardous = frames of recorded
         failure episodes (never a benchmark-shifted variant: those are not `usable`), the same contexts paired
-        with other skills, and synthetic off-manifold perturbations.
+        with other skills, and synthetic off-manifold perturbations. `episodes` [B] (dataset episode indices)
+        tag the safe memory, which is what `known_safe` measures the spread of the safe experience with.
         """
         n = self.config.replay_size
         safe = usable & (outcome == 0)
         fail = usable & (outcome > 0)
         with torch.no_grad():
             self.gate.push(c_raw[safe].detach())
-            self.safe_offline.add(c_raw[safe].detach(), skills[safe], ROUTINE)
+            tags = episodes.to(skills.device)[safe] if episodes is not None else -1
+            self.safe_offline.add(c_raw[safe].detach(), skills[safe], ROUTINE, tags)
             self.fail_offline.add(c_raw[fail].detach(), skills[fail])
         rc, rs, rf = self._replay(self.safe_offline, n)
         oc, os_, of = self._replay(self.safe_online, n if len(self.safe_online) else 0)
@@ -386,6 +394,28 @@ class KnowledgeValidityModule(nn.Module):
         return {k: float(v.detach()) for k, v in metrics.items()}
 
     # ----------------------------------------------------------------- helpers for the online API
+    @torch.no_grad()
+    def known_safe(self, c_raw: Tensor, skill: int) -> Tensor:
+        """[N] bool: contexts inside `skill`'s safe experience, which a failure of that skill cannot be blamed on.
+
+        A context is inside when it lies closer to one of the skill's safe samples than the safe samples of one
+        recorded episode typically lie to those of another (the `known_safe_quantile` of their cross-episode
+        nearest-neighbour distances): the ordinary spread of the safe experience. Before a shift shows, a failed
+        attempt senses exactly what a safe one does; labelling those steps hazardous would contradict the safe
+        memory and suppress the skill where it is still valid. Without two tagged episodes nothing is known.
+        """
+        buffers = [(b, b.filled()) for b in (self.safe_offline, self.safe_online)]
+        ref = torch.cat([b.data[i][b.skill[i] == skill] for b, i in buffers])
+        tags = torch.cat([b.tag[i][b.skill[i] == skill] for b, i in buffers])
+        tagged = tags >= 0
+        known = torch.zeros(len(c_raw), dtype=torch.bool, device=c_raw.device)
+        if len(torch.unique(tags[tagged])) < 2 or not len(c_raw):
+            return known
+        cross = torch.cdist(ref[tagged], ref[tagged])
+        cross[tags[tagged].unsqueeze(0) == tags[tagged].unsqueeze(1)] = float("inf")
+        radius = torch.quantile(cross.min(1).values, self.config.known_safe_quantile)
+        return torch.cdist(c_raw.to(ref), ref).min(1).values <= radius
+
     def add_safe(self, c_raw: Tensor, skills: Tensor, routine: bool, demo: bool = False) -> None:
         flags = (ROUTINE if routine else 0) | (DEMO if demo else 0)
         self.safe_online.add(c_raw, skills, flags)

@@ -284,7 +284,9 @@ class CodaKvmPolicy(PreTrainedPolicy):
             batch.get("episode_index"), batch_size, [s.name for s in self.skills], self.n_skills - 1
         )
         c_raw = self.kvm.raw_context(batch[self.config.context_key], query)
-        return self.kvm.offline_step(c_raw, skills, outcome, usable, self.kvm_active_skills())
+        episodes = batch.get("episode_index")
+        episodes = episodes.reshape(-1) if isinstance(episodes, Tensor) else None
+        return self.kvm.offline_step(c_raw, skills, outcome, usable, self.kvm_active_skills(), episodes)
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Any], skill_weights: Tensor | None = None) -> Tensor:
