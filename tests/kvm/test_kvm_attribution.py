@@ -159,3 +159,28 @@ def test_chronic_failures_prune_a_skill_which_stays_recoverable(make_policy, att
     assert policy.skills[pruned[0]].name  # never deleted from the skill table
     policy.kvm_restore_skill(pruned[0])
     assert bool(policy.kvm_active_skills()[pruned[0]])
+
+
+def test_known_safe_uses_the_cross_episode_spread_of_the_safe_memory(make_policy) -> None:
+    kvm = make_policy().kvm
+    dim = kvm.encoder.raw_dim
+    c = torch.zeros(4, dim)
+    assert not kvm.known_safe(c, 0).any()  # empty memory: nothing is known
+    gen = torch.Generator().manual_seed(0)
+    for episode in range(4):  # four episodes of the same routine: each about 0.1 away from the others
+        rows = torch.full((3, dim), 0.1 * episode) + 0.001 * torch.randn(3, dim, generator=gen)
+        kvm.safe_offline.add(rows, skill=0, tag=episode)
+    near = torch.full((1, dim), 0.15)  # between two episodes
+    far = torch.full((1, dim), 3.0)
+    assert kvm.known_safe(torch.cat([near, far]), 0).tolist() == [True, False]
+    assert not kvm.known_safe(near, 1).any()  # another skill's safe experience says nothing about skill 1
+
+
+def test_a_failure_that_looks_exactly_like_safe_experience_adds_no_negatives(make_policy, attempt) -> None:
+    policy = make_policy()
+    trace = attempt(policy, EGG, steps=6, seed=0)
+    c_raw = policy.kvm.raw_context(torch.cat(trace.contexts), policy.encode_query([EGG] * len(trace)))
+    for episode in range(2):  # the very contexts of this attempt, recorded safe in two episodes
+        policy.kvm.safe_offline.add(c_raw, skill=0, tag=episode)
+    report = policy.kvm_feedback("catastrophe", trace, gradient_steps=0)
+    assert report["culprit"] == 0 and report["negatives_added"] == 0
