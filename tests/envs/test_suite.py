@@ -74,3 +74,51 @@ def test_reset_is_deterministic_for_a_seed(sid, envs):
             np.testing.assert_array_equal(obs["agent_pos"], first["agent_pos"])
             np.testing.assert_array_equal(obs["context"], first["context"])
     other.close()
+
+
+
+GRIPPER_GEOMS = {"palm", "finger_l", "finger_r"}
+
+
+def robot_geom_mask(env: KvmObsolescenceEnv) -> tuple[np.ndarray, bool]:
+    """Which geoms belong to the robot (the carriage subtree), and whether it holds a tool from the start."""
+    m = env.model
+    mask = m.body_rootid[m.geom_bodyid] == m.body_rootid[m.body("carriage").id]
+    held = {m.geom(int(i)).name for i in np.nonzero(mask)[0]} - GRIPPER_GEOMS
+    return mask, bool(held)
+
+
+def run_until_contact(env: KvmObsolescenceEnv, variant: str, seed: int, actions: list[np.ndarray] | None = None):
+    """Contexts until the robot first touches anything but itself (a held tool counts from the start), with the
+    prior skill's expert or replaying `actions`; returns (contexts, actions, first contact index)."""
+    robot, holds_tool = robot_geom_mask(env)
+    obs, _ = env.reset(seed=seed, options={"variant": variant})
+    expert = env.scenario.expert(env.scenario.info.prior_skill)
+    contexts, taken = [obs["context"]], []
+    if holds_tool:
+        return contexts, taken, 0
+    for t in range(env._max_episode_steps):
+        action = expert.act(env) if actions is None else actions[t]
+        taken.append(action)
+        obs, _, terminated, truncated, _ = env.step(action)
+        contexts.append(obs["context"])
+        c = env.data.contact[: env.data.ncon]
+        if np.any(robot[c.geom1] != robot[c.geom2]):
+            return contexts, taken, len(contexts) - 1
+        if terminated or truncated or (actions is not None and t + 1 == len(actions)):
+            break
+    return contexts, taken, len(contexts)
+
+
+@pytest.mark.parametrize("sid", IDS)
+def test_context_is_identical_between_variants_until_the_robot_touches_something(sid, envs):
+    """Rule 3, sensed not told: under the same actions no observation channel carries the variant before the
+    robot touches the object (the scripted expert reads object poses, so the shifted run replays its actions)."""
+    env = envs(sid)
+    prior, actions, prior_contact = run_until_contact(env, "prior", seed=7)
+    shifted, _, shifted_contact = run_until_contact(env, "shifted", seed=7, actions=actions)
+    until = min(prior_contact, shifted_contact)
+    if until == 0:  # a held tool (or what it holds) touches the robot from the start: nothing is unsensed
+        assert robot_geom_mask(env)[1] or prior_contact == 0
+        return
+    np.testing.assert_allclose(np.stack(prior[:until]), np.stack(shifted[:until]), rtol=0, atol=1e-6)
