@@ -466,7 +466,11 @@ class CodaKvmPolicy(PreTrainedPolicy):
         cls, model: "CodaKvmPolicy", model_file: str, map_location: str, strict: bool
     ) -> "CodaKvmPolicy":
         """Always strict: a checkpoint with missing, unexpected or mis-shaped tensors is an error, not a
-        silently half-initialised policy."""
+        silently half-initialised policy.
+
+        Task-incremental learning: when the config names a skill the checkpoint does not have yet
+        (`lerobot-train --policy.path=<previous> --policy.skill_name=<next task>`), that skill is begun after
+        loading, in new CODA components; every earlier skill's rows stay frozen and bit-identical."""
         state = load_file(model_file, device=resolve_safetensors_device(map_location))
         expected = model.state_dict()
         missing = sorted(set(expected) - set(state))
@@ -482,4 +486,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
                 f"unexpected keys {unexpected}, shape mismatches {mismatched}"
             )
         model.load_state_dict(state, strict=True)
+        if model.config.skill_name not in {skill.name for skill in model.skills}:
+            model.begin_new_skill(model.config.skill_name, model.config.skill_description)
         return model

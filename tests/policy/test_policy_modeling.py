@@ -101,6 +101,30 @@ def test_save_load_round_trip_is_bit_identical(make_policy, make_batch, tmp_path
     assert torch.equal(policy.predict_action_chunk(batch), loaded.predict_action_chunk(batch))
 
 
+def test_loading_with_a_new_skill_name_begins_the_next_task(make_policy, make_batch, tmp_path) -> None:
+    """`lerobot-train --policy.path=<previous> --policy.skill_name=<next>`: the checkpoint's skills are loaded
+    bit-identically and the next task begins in new components; the saved result round-trips as it is."""
+    policy = make_policy()
+    batch = make_batch(policy.config)
+    train_steps(policy, torch.optim.AdamW(policy.get_optim_params(), lr=1e-2), batch, 2)
+    policy.save_pretrained(tmp_path / "stage0")
+    config = CodaKvmPolicy.config_class.from_pretrained(tmp_path / "stage0")
+    config.skill_name = "gentle_grasp"
+    grown = CodaKvmPolicy.from_pretrained(tmp_path / "stage0", config=config)
+    assert [s.name for s in grown.skills] == [policy.skills[0].name, "gentle_grasp"]
+    assert int(grown.pool.task_count) == 2
+    for k, v in policy.pool.tasks[0].state_dict().items():
+        assert torch.equal(v, grown.pool.tasks[0].state_dict()[k]), k
+    assert torch.equal(policy.query_fingerprint, grown.query_fingerprint)
+    trainable = {n for n, p in grown.pool.named_parameters() if p.requires_grad}
+    assert trainable and all(n.startswith("tasks.1.") for n in trainable)
+    grown.save_pretrained(tmp_path / "stage1")
+    again = CodaKvmPolicy.from_pretrained(tmp_path / "stage1")
+    assert again.skills == grown.skills
+    for k, v in grown.state_dict().items():
+        assert torch.equal(v, again.state_dict()[k]), k
+
+
 def test_incompatible_checkpoint_is_a_clear_error(make_policy, make_config, tmp_path) -> None:
     make_policy().save_pretrained(tmp_path)
     with pytest.raises(ValueError, match="incompatible.*shape"):
