@@ -98,3 +98,36 @@ def test_eval_writes_per_scenario_results(trained):
     assert info["overall"]["n_episodes"] == 2
     assert list(info["per_group"]) == ["egg_vs_stone"]
     assert 0.0 <= info["overall"]["pc_success"] <= 100.0
+
+
+def test_train_from_a_checkpoint_with_a_new_skill_name_grows_the_pool(trained):
+    """Task-incremental `lerobot-train`: the next task starts from the previous checkpoint in new components."""
+    from lerobot_kvm.policy import CodaKvmPolicy
+
+    previous = trained / "train" / "checkpoints" / "000004" / "pretrained_model"
+    spec = RecordingSpec(name="next", items=[RecordItem("egg_vs_stone", "prior", "gentle_grasp", 2, "skill")])
+    record_dataset(spec, trained / "next_data", repo_id="local/next", progress=False)
+    run(
+        [
+            str(BIN / "lerobot-train"),
+            f"--policy.path={previous}",
+            "--policy.skill_name=gentle_grasp",
+            "--dataset.repo_id=local/next",
+            f"--dataset.root={trained / 'next_data'}",
+            "--policy.push_to_hub=false",
+            "--policy.device=cpu",
+            f"--output_dir={trained / 'stage1'}",
+            "--steps=2",
+            "--save_freq=2",
+            "--batch_size=4",
+            "--num_workers=0",
+            "--wandb.enable=false",
+        ],
+        trained,
+    )
+    before = CodaKvmPolicy.from_pretrained(previous)
+    after = CodaKvmPolicy.from_pretrained(trained / "stage1" / "checkpoints" / "last" / "pretrained_model")
+    assert [s.name for s in after.skills] == [before.skills[0].name, "gentle_grasp"]
+    old, new = before.pool.tasks[0].state_dict(), after.pool.tasks[0].state_dict()
+    assert all(torch.equal(v, new[k]) for k, v in old.items())
+    assert torch.equal(before.query_fingerprint, after.query_fingerprint)
