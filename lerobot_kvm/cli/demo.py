@@ -98,8 +98,9 @@ def run(args: argparse.Namespace) -> int:
     _run(eval_command(policy_path, eval_dir, "egg_vs_stone", args.variant, args.eval_episodes, args.seed))
     info = json.loads((eval_dir / "eval_info.json").read_text())
     overall = info["overall"]
+    catastrophes = sum(r < 0 for task in info["per_task"] for r in task["metrics"]["sum_rewards"])
     print(
-        f"\negg_vs_stone ({args.variant}): success {overall['pc_success']:.1f}% over "
+        f"\negg_vs_stone ({args.variant}): success {overall['pc_success']:.1f}%, {catastrophes} catastrophes over "
         f"{overall['n_episodes']} episodes  [policy: {policy_path}]  ({time.time() - start:.0f} s total)"
     )
     return 0

@@ -22,7 +22,8 @@ class KvmObsolescenceEnv(gym.Env):
     Observation: `pixels` {camera: HxWx3 uint8}, `agent_pos` (proprio), `context` (sensed
     interaction context). Action: absolute carriage target x, y, z (m), wrist pitch (rad) and a
     grip command in [-1, 1] (negative opens, positive squeezes with that fraction of the
-    maximum finger force), rate-limited inside the env.
+    maximum finger force), rate-limited inside the env. Reward: 1 on success, -1 on a catastrophe (both end the
+    episode), else 0, so `lerobot-eval`'s per-episode reward sums count catastrophes too.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -119,7 +120,7 @@ class KvmObsolescenceEnv(gym.Env):
         self.outcome = self.scenario.evaluate(self)
         terminated = self.outcome.success or self.outcome.catastrophe is not None
         truncated = not terminated and self.step_count >= self._max_episode_steps
-        reward = 1.0 if self.outcome.success else 0.0
+        reward = float(self.outcome.success) - float(self.outcome.catastrophe is not None)  # 1 / -1 / 0
         return self._observation(), reward, terminated, truncated, self._info()
 
     def render(self) -> np.ndarray:

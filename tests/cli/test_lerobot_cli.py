@@ -97,6 +97,7 @@ def test_eval_writes_per_scenario_results(trained):
     info = json.loads((out / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 2
     assert list(info["per_group"]) == ["egg_vs_stone"]
+    assert len(info["per_task"][0]["metrics"]["sum_rewards"]) == 2  # per episode: 1 success, -1 catastrophe
     assert 0.0 <= info["overall"]["pc_success"] <= 100.0
 
 

@@ -99,3 +99,18 @@ def test_task_resolution_and_vector_envs():
     assert obs["context"].shape == (2, 24)
     assert list(vec.call("task_description")) == ["pick up the egg"] * 2
     vec.close()
+
+
+@pytest.mark.parametrize(("variant", "reward"), [("prior", 1.0), ("shifted", -1.0)])
+def test_reward_is_one_on_success_and_minus_one_on_a_catastrophe(variant, reward):
+    env = KvmObsolescenceEnv(task="egg_vs_stone", variant=variant)
+    env.reset(seed=0)
+    expert = env.scenario.expert("firm_grasp")
+    rewards = []
+    for _ in range(env._max_episode_steps):
+        _, r, terminated, truncated, _ = env.step(expert.act(env))
+        rewards.append(r)
+        if terminated or truncated:
+            break
+    env.close()
+    assert rewards[-1] == reward and set(rewards[:-1]) <= {0.0}
