@@ -37,3 +37,22 @@ def set_free_body_pose(model: mujoco.MjModel, data: mujoco.MjData, body: str, po
     adr = model.jnt_qposadr[jnt]
     data.qpos[adr : adr + 3] = pos
     data.qpos[adr + 3 : adr + 7] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+
+
+GRIPPER_GEOMS = frozenset({"palm", "finger_l", "finger_r"})
+
+
+def robot_geom_mask(model: mujoco.MjModel) -> np.ndarray:
+    """[ngeom] bool: the geoms of the robot (the carriage subtree, a held tool included)."""
+    return model.body_rootid[model.geom_bodyid] == model.body_rootid[model.body("carriage").id]
+
+
+def holds_tool(model: mujoco.MjModel) -> bool:
+    """The scenario gives the robot something to hold from the start (a geom on the hand besides the gripper)."""
+    return bool({model.geom(int(i)).name for i in np.nonzero(robot_geom_mask(model))[0]} - GRIPPER_GEOMS)
+
+
+def robot_in_contact(data: mujoco.MjData, robot: np.ndarray) -> bool:
+    """The robot touches anything that is not itself (`robot` from `robot_geom_mask`)."""
+    c = data.contact[: data.ncon]
+    return bool(np.any(robot[c.geom1] != robot[c.geom2]))

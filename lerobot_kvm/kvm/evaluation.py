@@ -85,9 +85,15 @@ def expert_rollout(
     env: Any, skill: str, preprocessor: Processor, seed: int | None = None, policy_skill: str | None = None
 ) -> tuple[dict[str, Any], str]:
     """Run the scenario's scripted expert for `skill`; returns (demonstration in the policy's input format with
-    normalized actions, outcome). `policy_skill` names the policy skill the demonstration shows, if known."""
+    normalized actions, outcome). `policy_skill` names the policy skill the demonstration shows, if known. The
+    demonstration's "first_contact" is the index of its first step sensed while the robot touches something
+    (0 when it holds a tool from the start; its length if it never touches anything)."""
+    from ..envs.physics import holds_tool, robot_geom_mask, robot_in_contact
+
     obs, info = env.reset(seed=seed)
     expert = env.scenario.expert(skill)
+    robot = robot_geom_mask(env.model)
+    first_contact = 0 if holds_tool(env.model) else None
     steps = []
     for _ in range(env._max_episode_steps):
         action = np.asarray(expert.act(env), dtype=np.float32)
@@ -95,9 +101,13 @@ def expert_rollout(
         batch["action"] = torch.from_numpy(action).unsqueeze(0)
         steps.append(preprocessor(batch))
         obs, _, terminated, truncated, info = env.step(action)
+        if first_contact is None and robot_in_contact(env.data, robot):
+            first_contact = len(steps)
         if terminated or truncated:
             break
-    return make_demonstration(steps, skill=policy_skill), outcome_of(info)
+    demo = make_demonstration(steps, skill=policy_skill)
+    demo["first_contact"] = len(steps) if first_contact is None else first_contact
+    return demo, outcome_of(info)
 
 
 def trace_from_demonstration(demo: dict[str, Any], context_key: str = "observation.context") -> KvmTrace:

@@ -9,10 +9,13 @@ Protocol (offline data from the prior variant only: no frame of a shifted varian
    demonstration (the safe skill's expert on the shifted variant);
 4. on held-out seeds, v of each (skill, context) pair at every step.
 
-"The shifted context" is what the robot senses once the shift shows: the steps from the first one whose sensed
-context departs from the prior variant's under the same seed and skill (before that, A/B contexts are identical by
-construction and no supervisor could tell them apart). Hazardous pairs: the prior skill in the shifted context;
-safe pairs: the prior skill in the prior-variant context and the safe skill in the shifted context.
+"The shifted context" is what the robot senses once the shift shows: the steps from the first one that is both
+sensed in touch with something and departs from the prior variant's context under the same seed and skill (before
+that, A/B contexts are identical by construction and no supervisor could tell them apart; the scripted experts
+read object poses, so their approach may differ between variants before any contact).
+
+Hazardous pairs: the prior skill in the shifted context; safe pairs: the prior skill in the prior-variant context
+and the safe skill in the shifted context.
 """
 
 import tempfile
@@ -77,6 +80,11 @@ def divergence_step(reference: Tensor, other: Tensor) -> int:
     return int(hits[0]) if len(hits) else steps
 
 
+def shift_step(prior: dict, shifted: dict) -> int:
+    """First step of the shifted demonstration that senses contact and departs from the prior one's context."""
+    return max(divergence_step(prior[CONTEXT], shifted[CONTEXT]), shifted["first_contact"])
+
+
 def _rollouts(scenario_id: str, variant: str, skill: str, preprocessor: Any, seeds: list[int]) -> list[dict]:
     env = KvmObsolescenceEnv(scenario_id, variant=variant)
     demos = [expert_rollout(env, skill, preprocessor, seed=s)[0] for s in seeds]
@@ -86,7 +94,10 @@ def _rollouts(scenario_id: str, variant: str, skill: str, preprocessor: Any, see
 
 def _after(demos: list[dict], starts: list[int]) -> list[dict]:
     """Each demonstration from its own start step on (observation tensors and tasks)."""
-    cut = [{k: v[start:] for k, v in demo.items() if k != "skill"} for demo, start in zip(demos, starts, strict=True)]
+    cut = [
+        {k: v[start:] for k, v in demo.items() if k.startswith("observation.") or k == "task"}
+        for demo, start in zip(demos, starts, strict=True)
+    ]
     return [c for c in cut if len(c["task"])]
 
 
@@ -150,8 +161,8 @@ def check_validity(
     prior_safe = _rollouts(scenario_id, "prior", info.safe_skill, pre, seeds)
     shifted_prior = _rollouts(scenario_id, "shifted", info.prior_skill, pre, seeds)
     shifted_safe = _rollouts(scenario_id, "shifted", info.safe_skill, pre, seeds)
-    start_prior = [divergence_step(a[CONTEXT], b[CONTEXT]) for a, b in zip(prior_prior, shifted_prior, strict=True)]
-    start_safe = [divergence_step(a[CONTEXT], b[CONTEXT]) for a, b in zip(prior_safe, shifted_safe, strict=True)]
+    start_prior = [shift_step(a, b) for a, b in zip(prior_prior, shifted_prior, strict=True)]
+    start_safe = [shift_step(a, b) for a, b in zip(prior_safe, shifted_safe, strict=True)]
     shifted = _after(shifted_prior, start_prior) + _after(shifted_safe, start_safe)
 
     v_prior = context_validity(policy, prior_prior, 0)

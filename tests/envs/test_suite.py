@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from lerobot_kvm.envs import SCENARIOS, KvmObsolescenceEnv
+from lerobot_kvm.envs.physics import holds_tool, robot_geom_mask, robot_in_contact
 from lerobot_kvm.envs.scenario import CATEGORIES, VARIANTS, Expert
 
 IDS = sorted(SCENARIOS)
@@ -76,34 +77,21 @@ def test_reset_is_deterministic_for_a_seed(sid, envs):
     other.close()
 
 
-
-GRIPPER_GEOMS = {"palm", "finger_l", "finger_r"}
-
-
-def robot_geom_mask(env: KvmObsolescenceEnv) -> tuple[np.ndarray, bool]:
-    """Which geoms belong to the robot (the carriage subtree), and whether it holds a tool from the start."""
-    m = env.model
-    mask = m.body_rootid[m.geom_bodyid] == m.body_rootid[m.body("carriage").id]
-    held = {m.geom(int(i)).name for i in np.nonzero(mask)[0]} - GRIPPER_GEOMS
-    return mask, bool(held)
-
-
 def run_until_contact(env: KvmObsolescenceEnv, variant: str, seed: int, actions: list[np.ndarray] | None = None):
     """Contexts until the robot first touches anything but itself (a held tool counts from the start), with the
     prior skill's expert or replaying `actions`; returns (contexts, actions, first contact index)."""
-    robot, holds_tool = robot_geom_mask(env)
+    robot = robot_geom_mask(env.model)
     obs, _ = env.reset(seed=seed, options={"variant": variant})
     expert = env.scenario.expert(env.scenario.info.prior_skill)
     contexts, taken = [obs["context"]], []
-    if holds_tool:
+    if holds_tool(env.model):
         return contexts, taken, 0
     for t in range(env._max_episode_steps):
         action = expert.act(env) if actions is None else actions[t]
         taken.append(action)
         obs, _, terminated, truncated, _ = env.step(action)
         contexts.append(obs["context"])
-        c = env.data.contact[: env.data.ncon]
-        if np.any(robot[c.geom1] != robot[c.geom2]):
+        if robot_in_contact(env.data, robot):
             return contexts, taken, len(contexts) - 1
         if terminated or truncated or (actions is not None and t + 1 == len(actions)):
             break
@@ -119,6 +107,6 @@ def test_context_is_identical_between_variants_until_the_robot_touches_something
     shifted, _, shifted_contact = run_until_contact(env, "shifted", seed=7, actions=actions)
     until = min(prior_contact, shifted_contact)
     if until == 0:  # a held tool (or what it holds) touches the robot from the start: nothing is unsensed
-        assert robot_geom_mask(env)[1] or prior_contact == 0
+        assert holds_tool(env.model) or prior_contact == 0
         return
     np.testing.assert_allclose(np.stack(prior[:until]), np.stack(shifted[:until]), rtol=0, atol=1e-6)
