@@ -25,7 +25,8 @@ COLUMNS = (
 )
 LEGEND = (
     "v prior / v shifted = median validity of the prior skill in the prior-variant context / in the shifted context\n"
-    "(the steps from the first one whose sensed context departs from the prior variant's, same seed and skill);\n"
+    "(the steps from the first one that senses contact and departs from the prior variant's context, same seed\n"
+    "and skill);\n"
     "AUROC of 1 - v: prior skill in the shifted context vs. prior skill in the prior context and safe skill in\n"
     "the shifted context; gate = share of steps on which the smart gate opens"
 )
