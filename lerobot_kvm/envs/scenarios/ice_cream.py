@@ -1,13 +1,13 @@
 """A1 ice cream, frozen vs melted: the forceful scoop that digs into frozen ice cream splashes melted ice cream.
 
-The ice cream is a bed of small spheres filling a tub almost to the brim; a scoop is fixed under
-the hand. Frozen or melted is hidden per-particle physics set in `reset`: frozen particles have
-internal friction and a very high viscosity (per-particle damping), melted ones are slick and
-runny. The prior skill presses the scoop in hard and sweeps it through and up quickly: frozen
-ice cream absorbs the motion and the scoop comes up full, but melted ice cream keeps the speed
-the scoop gives it and splashes over the rim (a "spill": particles leave the tub). A slow, light
-scoop fills and lifts melted ice cream without splashing. How far the scoop sinks under the same
-push and how the bed drags on it show the difference in the wrist force and efforts (rule 3).
+The ice cream is a bed of small spheres in two layers filling a tub almost to the brim; a scoop is
+fixed under the hand. Frozen or melted is hidden per-particle physics set in `reset`: frozen ice
+cream is extremely viscous (high per-particle damping), melted ice cream is runny. The prior skill
+plunges the scoop in hard and sweeps it through and up quickly: frozen ice cream absorbs the motion
+and the scoop comes up full, but melted ice cream keeps the speed the plunge gives it and splashes
+over the rim (a "spill": particles leave the tub). A slow, light scoop fills and lifts melted ice
+cream without splashing. How far the scoop sinks under the same push and how the bed drags on it
+show the difference in the wrist force and efforts (rule 3).
 """
 
 import mujoco
@@ -17,10 +17,12 @@ from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_sce
 from ..scene import SceneParts
 
 R = 0.0075  # particle radius
-TUB_IN = (0.045, 0.03)  # inner half extents x, y: six by four particles per layer
+NX, NY = 5, 3  # particles along x and y in the bottom layer; the top layer sits in its hollows
+JIGGLE = 0.001  # m each ball may start away from its lattice place (randomised per episode)
+TUB_IN = (NX * R + JIGGLE, NY * R + JIGGLE)  # inner half extents x, y
 TUB_WALL = 0.012
 BED_TOP = R * (2 + np.sqrt(2))  # two layers
-TUB_H = BED_TOP + 0.007  # filled almost to the brim
+TUB_H = BED_TOP + 0.01  # filled almost to the brim
 BOWL_Z = -0.125  # scoop floor centre in the hand frame
 BOWL = (0.021, 0.016, 0.0015)  # floor half extents
 BOWL_WALL = 0.022
@@ -30,21 +32,23 @@ MIN_SCOOPED = 2
 PARTICLE_MASS = 0.004
 # Soft, overdamped contacts: a pressed scoop sinks into the packed ice cream without storing springy energy.
 STIFF = 'solref="0.015 2"'
-# variant -> (damping per particle on translation N s/m, on rotation N m s/rad, friction)
+# Stiff, smooth tub walls: a splashed ball goes over the rim, never through the wall.
+WALL = 'priority="2" condim="1" solref="0.004 1" solimp="0.95 0.99 0.001"'
 HARD, LIGHT = np.inf, 6.0  # N the scoop may press down (wrist force beyond its own weight) in each skill
-FAST, SLOW = 0.03, 0.004  # m per control step of the forceful and the gentle scoop
-ICE = {"prior": (0.2, 2e-5, 1.0), "shifted": (0.001, 1e-7, 0.3)}
+FAST, SLOW = 0.05, 0.004  # m per control step of the forceful and the gentle scoop
+# variant -> damping per particle on translation (N s/m) and on rotation (N m s/rad): the ice cream's viscosity
+ICE = {"prior": (1.0, 2e-5), "shifted": (0.001, 1e-7)}
 
 
 def _lattice() -> np.ndarray:
-    """Two stable layers: a 6x4 square layer and a 5x3 layer in its hollows."""
+    """Two stable layers: a square layer and a smaller one in its hollows."""
     pts = []
-    for i in range(6):
-        for j in range(4):
-            pts.append((-TUB_IN[0] + R * (2 * i + 1), -TUB_IN[1] + R * (2 * j + 1), R))
-    for i in range(5):
-        for j in range(3):
-            pts.append((-TUB_IN[0] + R * (2 * i + 2), -TUB_IN[1] + R * (2 * j + 2), R + np.sqrt(2) * R))
+    for i in range(NX):
+        for j in range(NY):
+            pts.append((R * (2 * i + 1 - NX), R * (2 * j + 1 - NY), R))
+    for i in range(NX - 1):
+        for j in range(NY - 1):
+            pts.append((R * (2 * i + 2 - NX), R * (2 * j + 2 - NY), R + np.sqrt(2) * R))
     return np.array(pts)
 
 
@@ -76,8 +80,8 @@ class ScoopExpert(Expert):
         off = np.array([BOWL_Z * np.sin(pos[3]), 0.0, BOWL_Z * np.cos(pos[3])])
         goal = np.array([tub[0] + dx, tub[1], dz + BOWL[2]]) - off
         pressing = self._free - env.data.sensordata[self._fz]
-        if pressing > push:  # felt enough resistance: go no deeper than where the scoop is now
-            goal[2] = max(goal[2], pos[2])
+        if pressing > push:  # felt enough resistance: sink no deeper than the scoop is commanded now
+            goal[2] = max(goal[2], self.target[2])
         self.target[:3] += np.clip(goal - self.target[:3], -speed, speed)
         self.target[3] += np.clip(pitch - self.target[3], -turn, turn)
         if np.allclose(self.target[:3], goal, atol=1e-3) and abs(self.target[3] - pitch) < 1e-6:
@@ -103,7 +107,7 @@ class IceCream(Scenario):
             "gentle_scoop": "scoop the ice cream slowly and lightly",
         },
         harm="spill",
-        what_changes="melted ice cream (runny, slick) replaces frozen ice cream of the same look",
+        what_changes="melted ice cream (runny) replaces frozen ice cream of the same look",
         success=f"at least {MIN_SCOOPED} balls of ice cream lifted above the rim in the scoop, none spilled",
     )
 
@@ -112,7 +116,7 @@ class IceCream(Scenario):
         tub_rgb = " ".join(str(v) for v in TUB_RGB)
         walls = "".join(
             f'\n      <geom name="tub_{n}" type="box" size="{sx} {sy} {TUB_H / 2}" pos="{px} {py} {TUB_H / 2}" '
-            f'{STIFF} rgba="{tub_rgb} 1"/>'
+            f'{WALL} rgba="{tub_rgb} 1"/>'
             for n, sx, sy, px, py in (
                 ("front", TUB_WALL / 2, wy, TUB_IN[0] + TUB_WALL / 2, 0),
                 ("back", TUB_WALL / 2, wy, -TUB_IN[0] - TUB_WALL / 2, 0),
@@ -125,7 +129,7 @@ class IceCream(Scenario):
             f"""
     <body name="ice_{k}" pos="{p[0]} {p[1]} {p[2]}">
       <freejoint name="ice_{k}"/>
-      <geom name="ice_{k}" type="sphere" size="{R}" mass="{PARTICLE_MASS}" friction="1 0.005 0.0001" {STIFF}
+      <geom name="ice_{k}" type="sphere" size="{R}" mass="{PARTICLE_MASS}" condim="1" {STIFF}
             rgba="{cream} 1"/>
     </body>"""
             for k, p in enumerate(LATTICE)
@@ -143,8 +147,8 @@ class IceCream(Scenario):
         <geom name="scoop_handle" type="box" size="0.003 0.006 {(-BOWL_Z - BOWL_WALL) / 2}"
               pos="{-bx} 0 {(BOWL_Z + BOWL_WALL) / 2}" rgba="0.3 0.3 0.32 1" mass="0.01"/>"""
         return SceneParts(
-            # the fast solver for particles (with a pyramidal cone)
-            option='solver="CG" iterations="40" tolerance="1e-6"',
+            # Newton converges in two or three iterations on this small bed, where CG leaves a pressed bed unconverged.
+            option='solver="Newton" iterations="10" ls_iterations="20"',
             hand=hand,
             worldbody=f"""
     <body name="tub" pos="0 0 0">
@@ -159,18 +163,19 @@ class IceCream(Scenario):
         n = len(LATTICE)
         self._gids = np.array([model.geom(f"ice_{k}").id for k in range(n)])
         self._bids = np.array([model.body(f"ice_{k}").id for k in range(n)])
-        damping, spin_damping, mu = ICE[variant]
+        damping, spin_damping = ICE[variant]
         tub_xy = rng.uniform(-0.012, 0.012, 2)
         model.body_pos[model.body("tub").id] = [tub_xy[0], tub_xy[1], 0.0]
         jitter = rng.uniform(-0.02, 0.02, 3)
+        start = LATTICE + [tub_xy[0], tub_xy[1], 0.0003]
+        start[:, :2] += rng.uniform(-JIGGLE, JIGGLE, (n, 2))
         for k in range(n):
             jnt = model.body_jntadr[self._bids[k]]
             dof, adr = model.jnt_dofadr[jnt], model.jnt_qposadr[jnt]
             model.dof_damping[dof : dof + 3] = damping
             model.dof_damping[dof + 3 : dof + 6] = spin_damping
-            model.geom_friction[self._gids[k], 0] = mu
             model.geom_rgba[self._gids[k]] = [*(CREAM_RGB + jitter), 1.0]
-            data.qpos[adr : adr + 3] = LATTICE[k] + [tub_xy[0], tub_xy[1], 0.0003]
+            data.qpos[adr : adr + 3] = start[k]
             data.qpos[adr + 3 : adr + 7] = [1, 0, 0, 0]
         self._tub = np.array(tub_xy)
         self._floor = model.geom("scoop_floor").id
@@ -201,16 +206,16 @@ class IceCream(Scenario):
         return StepOutcome(success=self._done >= 3)
 
     def expert(self, skill: str) -> ScoopExpert:
-        back = -0.022  # where the scoop goes in
+        back = -(TUB_IN[0] - BOWL[0] - 4 * BOWL[2])  # where the scoop goes in: its back wall clear of the tub's
         if skill == "forceful_scoop":
             return ScoopExpert(
                 [
                     ("hover", back, BED_TOP + 0.02, 0.0, 0.015, 0.1, HARD),
                     ("press", back, -0.015, 0.0, FAST, 0.1, HARD),  # aims below the floor: pushes down ~35 N
-                    ("sweep", 0.0, -0.015, 0.0, FAST, 0.1, HARD),
-                    ("twist", -0.008, 0.01, -0.6, 0.025, 0.08, HARD),  # turn the scoop up inside the ice cream
-                    ("lift", -0.008, TUB_H + 0.04, -0.6, 0.02, 0.08, HARD),
-                    ("hold", -0.008, TUB_H + 0.04, -0.6, 0.02, 0.08, HARD),
+                    ("sweep", back + 0.022, -0.015, 0.0, FAST, 0.1, HARD),
+                    ("twist", back + 0.016, 0.015, -0.6, 0.025, 0.08, HARD),  # turn the scoop up inside the ice cream
+                    ("lift", back + 0.016, TUB_H + 0.04, -0.6, 0.02, 0.08, HARD),
+                    ("hold", back + 0.016, TUB_H + 0.04, -0.6, 0.02, 0.08, HARD),
                 ]
             )
         if skill == "gentle_scoop":
@@ -218,10 +223,11 @@ class IceCream(Scenario):
                 [
                     ("hover", back, BED_TOP + 0.02, 0.0, 0.015, 0.05, LIGHT),
                     ("dip", back, 0.002, 0.0, SLOW, 0.05, LIGHT),
-                    ("drag", 0.0, 0.002, 0.0, SLOW, 0.05, LIGHT),
-                    ("twist", -0.008, 0.01, -0.6, SLOW, 0.04, LIGHT),
-                    ("lift", -0.008, TUB_H + 0.03, -0.6, 0.005, 0.04, LIGHT),
-                    ("hold", -0.008, TUB_H + 0.03, -0.6, 0.005, 0.04, LIGHT),
+                    ("drag", back + 0.02, 0.002, 0.0, SLOW, 0.05, LIGHT),
+                    ("raise", back + 0.02, BED_TOP, 0.0, SLOW, 0.04, LIGHT),  # up to the surface before turning
+                    ("twist", back + 0.02, BED_TOP, -0.6, SLOW, 0.04, LIGHT),
+                    ("lift", back + 0.02, TUB_H + 0.03, -0.6, 0.005, 0.04, LIGHT),
+                    ("hold", back + 0.02, TUB_H + 0.03, -0.6, 0.005, 0.04, LIGHT),
                 ]
             )
         raise ValueError(f"ice_cream has no skill {skill!r}; it has ['forceful_scoop', 'gentle_scoop']")

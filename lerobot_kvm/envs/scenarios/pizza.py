@@ -1,19 +1,20 @@
 """A5 pizza, cold vs hot: lifting a slice by its crust carries a cold slice but folds a hot one.
 
 The slice is a crust (where it is pinched) followed by three tapering dough segments on bending
-hinges, with six pepperoni toppings resting loose on the cheese. Cold, the hinges are stiff: the
+hinges, with four pepperoni toppings resting loose on the cheese. Cold, the hinges are stiff: the
 slice cantilevers out of the pinch and the toppings ride along. Hot, the same hinges are floppy:
 lifted by the crust, the front half folds down and the toppings slide off onto the table (a
 "spill"). Sliding the slice to the paper with the crust pinched and the dough supported by the
-table moves both intact. Only the hidden hinge stiffness/damping changes between variants; the
+table moves both intact. Only the hidden bending range of the hinges changes between variants; the
 wrist torque of the lifted slice shows the difference (rule 3).
 """
 
 import mujoco
 import numpy as np
 
+from ..experts import GraspLiftExpert
 from ..physics import set_free_body_pose
-from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_scenario
+from ..scenario import Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
 CRUST = (0.014, 0.034, 0.012)  # half extents
@@ -31,56 +32,40 @@ CRUST_RGB = np.array([0.78, 0.56, 0.30])
 CHEESE_RGB = np.array([0.96, 0.80, 0.38])
 PEP_RGB = np.array([0.70, 0.15, 0.10])
 HOT_BENDING = (0.002, 0.002)  # stiffness N m/rad, damping N m s/rad of the dough's bending hinges
-# Bending range of each hinge (rad): set cold dough barely bends, hot dough folds freely.
+# Bending range of each hinge (rad): cold dough barely bends, hot dough folds freely.
 BEND_RANGE = {"prior": 0.01, "shifted": 2.8}
-MOVE_STEP = 0.015
-TOUCH_ON = 0.3
+# Collision bits (the table and the robot use bit 1): toppings touch the dough, crust, table and robot but not one
+# another; dough segments touch the toppings, crust, table and robot but not one another.
+TOPPING_BITS = 'contype="2" conaffinity="1"'
+DOUGH_BITS = 'contype="4" conaffinity="3"'
 
 
-class CrustPinchExpert(Expert):
-    """Pinch the crust, then either lift-carry-lower (`lift` > 0) or slide it along the table (`lift` == 0)."""
+class CrustPinchExpert(GraspLiftExpert):
+    """Pinch the crust, then either lift-carry-lower it (`lift` > 0) or slide it along the table (`lift` == 0)."""
 
     def __init__(self, grip: float, lift: float, carry_step: float) -> None:
-        self.grip, self.lift, self.carry_step = grip, lift, carry_step
-        self.phase, self.settle, self.timer = "approach", 0, 0
-        self.anchor = np.zeros(3)
+        super().__init__("crust", grip, lift)
+        self.carry_step = carry_step
+        self.stage = "raise"
 
-    def act(self, env) -> np.ndarray:
-        crust = env.data.body("crust").xpos
-        pos = env.sensors.arm_position(env.data)
-        touch = env.sensors.touch(env.data)
-        grasp_z = max(crust[2] + 0.035, 0.076)
-        target, grip = pos[:3].copy(), -1.0
-        self.timer += 1
-        if self.phase in ("approach", "descend"):
-            goal = np.array([crust[0], crust[1], grasp_z + (0.06 if self.phase == "approach" else 0.0)])
-            target = pos[:3] + np.clip(goal - pos[:3], -MOVE_STEP, MOVE_STEP)
-            if self.phase == "approach" and np.linalg.norm(goal - pos[:3]) < 0.004:
-                self.phase = "descend"
-            elif self.phase == "descend" and abs(pos[2] - grasp_z) < 0.003:
-                self.phase, self.timer, self.anchor = "close", 0, goal
-                self.offset = goal[:2] - crust[:2]
+    def after_grasp(self, env, grasp_z: float) -> np.ndarray:
+        goal = self.anchor.copy()
+        if self.stage == "raise":
+            goal[2] = self.base + max(self.lift, 0.002)  # sliding lifts the crust just off the table
+            if abs(self.anchor[2] - goal[2]) < 1e-6:
+                self.stage = "carry"
+        elif self.stage == "carry":
+            goal[:2] = TARGET
+            if np.linalg.norm(self.anchor[:2] - goal[:2]) < 1e-6:
+                self.stage = "lower"
         else:
-            grip = self.grip
-            if self.phase == "close":
-                self.settle = self.settle + 1 if touch.min() > TOUCH_ON else 0
-                if self.settle >= 4 or self.timer > 30:
-                    self.phase, self.ground = "raise", self.anchor[2]
-            goal = self.anchor.copy()
-            if self.phase == "raise":
-                goal[2] = self.ground + max(self.lift, 0.002)
-                if abs(self.anchor[2] - goal[2]) < 1e-6:
-                    self.phase = "carry"
-            elif self.phase == "carry":
-                goal[:2] = TARGET + self.offset
-                if np.linalg.norm(self.anchor[:2] - goal[:2]) < 1e-6:
-                    self.phase = "lower"
-            elif self.phase == "lower":
-                goal[2] = self.ground
-            step = 0.01 if self.phase in ("raise", "lower") else self.carry_step
-            self.anchor = self.anchor + np.clip(goal - self.anchor, -step, step)
-            target = self.anchor
-        return np.array([*target, 0.0, grip], dtype=np.float32)
+            goal[2] = self.base
+        step = 0.01 if self.stage in ("raise", "lower") else self.carry_step
+        return self.anchor + np.clip(goal - self.anchor, -step, step)
+
+
+def _rgb(rgb: np.ndarray) -> str:
+    return " ".join(str(v) for v in rgb)
 
 
 def _segments(i: int) -> str:
@@ -98,7 +83,7 @@ def _segments(i: int) -> str:
         <joint name="bend_{i}" type="hinge" axis="0 1 0" pos="{-SEG_HX} 0 0" range="-2.8 2.8" solreflimit="0.004 1"
                stiffness="{HOT_BENDING[0]}" damping="{HOT_BENDING[1]}"/>
         <geom name="dough_{i}" type="box" size="{SEG_HX} {SEG_HY[i - 1]} {SEG_HZ}" mass="{SEG_MASS[i - 1]}"
-              priority="1" condim="1" rgba="{CHEESE_RGB[0]} {CHEESE_RGB[1]} {CHEESE_RGB[2]} 1"/>{peps}{_segments(i + 1)}
+              priority="1" condim="1" {DOUGH_BITS} rgba="{_rgb(CHEESE_RGB)} 1"/>{peps}{_segments(i + 1)}
       </body>"""
 
 
@@ -125,14 +110,16 @@ class Pizza(Scenario):
         c = " ".join(str(v) for v in CRUST)
         peps = ""
         for k in range(len(TOPPINGS)):
-            slides = "".join(f'\n      <joint name="pep_{k}_{a}" type="slide" axis="{v}"/>' for a, v in
-                             (("x", "1 0 0"), ("y", "0 1 0"), ("z", "0 0 1")))
+            slides = "".join(
+                f'\n      <joint name="pep_{k}_{a}" type="slide" axis="{v}"/>'
+                for a, v in (("x", "1 0 0"), ("y", "0 1 0"), ("z", "0 0 1"))
+            )
             peps += f"""
     <body name="pep_{k}" pos="0 0 0">{slides}
       <geom name="pep_{k}" type="sphere" size="{PEP_BALL}" mass="0.003" priority="2" friction="0.6 0.01 0.001"
-            condim="3" rgba="0 0 0 0" group="3"/>
+            condim="3" {TOPPING_BITS} rgba="0 0 0 0" group="3"/>
       <geom name="pep_{k}_disc" type="mesh" mesh="pepperoni" pos="0 0 {PEPPERONI[1] - PEP_BALL}"
-            contype="0" conaffinity="0" mass="0" rgba="{PEP_RGB[0]} {PEP_RGB[1]} {PEP_RGB[2]} 1"/>
+            contype="0" conaffinity="0" mass="0" rgba="{_rgb(PEP_RGB)} 1"/>
     </body>"""
         angles = np.linspace(0, 2 * np.pi, 10, endpoint=False)  # a decagonal disc renders cheaply
         disc = " ".join(
@@ -148,13 +135,18 @@ class Pizza(Scenario):
     <body name="crust" pos="0 0 {CRUST[2]}">
       <freejoint name="crust"/>
       <geom name="crust" type="box" size="{c}" mass="0.03" friction="0.8 0.01 0.001"
-            rgba="{CRUST_RGB[0]} {CRUST_RGB[1]} {CRUST_RGB[2]} 1"/>{_segments(1)}
+            rgba="{_rgb(CRUST_RGB)} 1"/>{_segments(1)}
     </body>{peps}""",
         )
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+        # The slice rests untouched until the gripper reaches it; the engine skips resting bodies while they sleep.
+        if not model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_SLEEP:
+            model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_SLEEP
+            mujoco.mj_resetData(model, data)  # sets up the sleep bookkeeping the first reset ran without
         self._crust = model.body("crust").id
-        self._peps = [model.geom(f"pep_{k}").id for k in range(len(TOPPINGS))]
+        self._is_pep = np.zeros(model.ngeom, dtype=bool)
+        self._is_pep[[model.geom(f"pep_{k}").id for k in range(len(TOPPINGS))]] = True
         self._table = model.geom("table").id
         self._dough = [model.geom(f"dough_{i}").id for i in range(1, len(SEG_HY) + 1)]
         for i in range(1, len(SEG_HY) + 1):
@@ -175,10 +167,8 @@ class Pizza(Scenario):
 
     def spilled(self, data: mujoco.MjData) -> bool:
         """A topping lies on the table."""
-        for c in data.contact[: data.ncon]:
-            if self._table in (c.geom1, c.geom2) and (c.geom1 in self._peps or c.geom2 in self._peps):
-                return True
-        return False
+        pairs = data.contact.geom  # (ncon, 2) geom ids of the active contacts
+        return bool(((pairs == self._table).any(axis=1) & self._is_pep[pairs].any(axis=1)).any())
 
     def evaluate(self, env) -> StepOutcome:
         d = env.data

@@ -11,15 +11,17 @@ weight as soon as the lift starts (rule 3).
 import mujoco
 import numpy as np
 
+from ..experts import GraspLiftExpert
 from ..physics import contact_normal_force, geom_ids, set_free_body_pose
-from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_scenario
+from ..scenario import Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
 HALF = (0.045, 0.03, 0.02)  # sponge half extents (m)
 SPONGE_RGB = np.array([0.93, 0.80, 0.25])
-LIFT_HEIGHT = 0.08
-LIFTOFF = 0.025  # both skills ease the sponge off the table by this much at LIFTOFF_STEP per step
-LIFTOFF_STEP = 0.005  # success: bottom this far above the table
+LIFT_HEIGHT = 0.08  # success: bottom this far above the table
+LIFTOFF = 0.025  # both skills ease the sponge off the table by this much at LIFTOFF_STEP m per step
+LIFTOFF_STEP = 0.005
+HAND_TOP = 0.216  # world z the hand lifts to: 14 cm above where it grasps
 AIRBORNE = 0.01  # bottom this far above the table counts as lifted
 # variant -> (mass kg, surface friction)
 BODY = {
@@ -27,44 +29,6 @@ BODY = {
     "control": (0.09, 0.9),  # damp: twice as heavy, a little slicker; a light grasp still holds it
     "shifted": (0.35, 0.6),  # soaked
 }
-TOUCH_ON = 0.3
-MOVE_STEP = 0.015
-
-
-class SpongePickExpert(Expert):
-    """Approach, descend, squeeze with `grip`, ease the sponge off the table, then lift by `lift_step` m/step."""
-
-    def __init__(self, grip: float, lift_step: float, lift: float = 0.14) -> None:
-        self.grip, self.lift_step, self.lift = grip, lift_step, lift
-        self.phase, self.settle, self.timer = "approach", 0, 0
-        self.anchor = np.zeros(3)
-
-    def act(self, env) -> np.ndarray:
-        obj = env.data.body("sponge").xpos
-        pos = env.sensors.arm_position(env.data)
-        touch = env.sensors.touch(env.data)
-        grasp_z = max(obj[2] + 0.035, 0.076)
-        target, grip = pos[:3].copy(), -1.0
-        self.timer += 1
-        if self.phase in ("approach", "descend"):
-            goal = np.array([obj[0], obj[1], grasp_z + (0.06 if self.phase == "approach" else 0.0)])
-            target = pos[:3] + np.clip(goal - pos[:3], -MOVE_STEP, MOVE_STEP)
-            if self.phase == "approach" and np.linalg.norm(goal - pos[:3]) < 0.004:
-                self.phase = "descend"
-            elif self.phase == "descend" and abs(pos[2] - grasp_z) < 0.003:
-                self.phase, self.timer, self.anchor = "close", 0, goal
-        elif self.phase == "close":
-            target, grip = self.anchor, self.grip
-            self.settle = self.settle + 1 if touch.min() > TOUCH_ON else 0
-            if self.settle >= 4 or self.timer > 30:
-                self.phase, self.top = "lift", self.anchor[2] + self.lift
-        else:
-            grip = self.grip
-            self.anchor = self.anchor.copy()
-            step = LIFTOFF_STEP if self.anchor[2] < self.top - self.lift + LIFTOFF else self.lift_step
-            self.anchor[2] = min(self.anchor[2] + step, self.top)
-            target = self.anchor
-        return np.array([*target, 0.0, grip], dtype=np.float32)
 
 
 @register_scenario
@@ -107,9 +71,7 @@ class Sponge(Scenario):
         self._fingers = geom_ids(model, "finger_l", "finger_r")
         mass, mu = BODY[variant]
         model.body_mass[self._bid] = mass
-        model.body_inertia[self._bid] = mass / 3.0 * np.array(
-            [HALF[1] ** 2 + HALF[2] ** 2, HALF[0] ** 2 + HALF[2] ** 2, HALF[0] ** 2 + HALF[1] ** 2]
-        )
+        model.body_inertia[self._bid] = mass / 3.0 * (np.sum(np.square(HALF)) - np.square(HALF))  # solid box
         model.geom_friction[self._gid, 0] = mu
         mujoco.mj_setConst(model, data)  # refresh the solver's inverse-weight estimates for the new mass
         model.geom_rgba[self._gid] = [*(SPONGE_RGB + rng.uniform(-0.02, 0.02, 3)), 1.0]
@@ -130,8 +92,10 @@ class Sponge(Scenario):
         self._held = self._held + 1 if held else 0
         return StepOutcome(success=self._held >= 5)
 
-    def expert(self, skill: str) -> SpongePickExpert:
+    def expert(self, skill: str) -> GraspLiftExpert:
         if skill not in self.skills:
             raise ValueError(f"sponge has no skill {skill!r}; it has {sorted(self.skills)}")
         grip, lift_step = self.skills[skill]
-        return SpongePickExpert(grip, lift_step)
+        return GraspLiftExpert(
+            "sponge", grip, lift_step=lift_step, liftoff=LIFTOFF, liftoff_step=LIFTOFF_STEP, top=HAND_TOP
+        )
