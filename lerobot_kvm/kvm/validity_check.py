@@ -34,6 +34,7 @@ from .evaluation import (
     context_validity,
     dataset_contexts,
     expert_rollout,
+    gate_rate,
     pretrain_kvm,
     trace_from_demonstration,
 )
@@ -99,16 +100,6 @@ def _after(demos: list[dict], starts: list[int]) -> list[dict]:
         for demo, start in zip(demos, starts, strict=True)
     ]
     return [c for c in cut if len(c["task"])]
-
-
-@torch.no_grad()
-def _gate_rate(policy: Any, demos: list[dict]) -> float:
-    kvm, opened, total = policy.kvm, 0, 0
-    for demo in demos:
-        _, sigma2, _ = kvm.encode(kvm.raw_context(demo[CONTEXT], policy.encode_query(demo["task"])))
-        opened += int((sigma2 > kvm.threshold()).sum())
-        total += len(sigma2)
-    return opened / max(total, 1)
 
 
 def check_validity(
@@ -180,8 +171,8 @@ def check_validity(
         "v_shifted_median": float(v_shifted.median()) if len(v_shifted) else None,
         "v_shifted_below_tau_v": float((v_shifted < V_LOW).float().mean()) if len(v_shifted) else None,
         "auroc": auroc(1 - v_shifted, torch.cat([1 - v_prior, 1 - v_safe])) if len(v_shifted) else None,
-        "gate_rate_prior": _gate_rate(policy, prior_prior),
-        "gate_rate_shifted": _gate_rate(policy, shifted) if shifted else None,
+        "gate_rate_prior": gate_rate(policy, prior_prior),
+        "gate_rate_shifted": gate_rate(policy, shifted) if shifted else None,
     }
     row["passes"] = judge(row)
     row["passed"] = all(row["passes"].values())
