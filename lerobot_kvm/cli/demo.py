@@ -6,64 +6,14 @@ copied and varied.
 
 import argparse
 import json
-import shlex
 import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 from ..datasets.recorder import RecordingSpec, record_dataset
+from .lerobot_commands import eval_command, run_logged, train_command
 
 DEFAULT_SPEC = Path(__file__).resolve().parents[2] / "datasets" / "specs" / "egg_vs_stone_demo.json"
-
-
-def _bin(name: str) -> str:
-    """The console script next to this interpreter (the venv's), else from PATH."""
-    local = Path(sys.executable).parent / name
-    return str(local) if local.exists() else name
-
-
-def _run(cmd: list[str]) -> None:
-    print("\n$ " + shlex.join(cmd), flush=True)
-    subprocess.run(cmd, check=True)
-
-
-def train_command(
-    dataset_root: Path, repo_id: str, output_dir: Path, steps: int, batch_size: int, seed: int
-) -> list[str]:
-    return [
-        _bin("lerobot-train"),
-        "--policy.type=coda_kvm",
-        f"--dataset.repo_id={repo_id}",
-        f"--dataset.root={dataset_root}",
-        "--policy.push_to_hub=false",
-        "--policy.device=cpu",
-        f"--output_dir={output_dir}",
-        f"--steps={steps}",
-        f"--batch_size={batch_size}",
-        f"--save_freq={steps}",
-        "--log_freq=100",
-        "--num_workers=1",
-        f"--seed={seed}",
-        "--wandb.enable=false",
-    ]
-
-
-def eval_command(policy_path: Path, output_dir: Path, task: str, variant: str, episodes: int, seed: int) -> list[str]:
-    return [
-        _bin("lerobot-eval"),
-        f"--policy.path={policy_path}",
-        "--env.type=kvm_obsolescence",
-        f"--env.task={task}",
-        f"--env.variant={variant}",
-        f"--eval.n_episodes={episodes}",
-        f"--eval.batch_size={min(episodes, 10)}",
-        "--eval.use_async_envs=false",
-        "--policy.device=cpu",
-        f"--output_dir={output_dir}",
-        f"--seed={seed}",
-    ]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -88,14 +38,14 @@ def run(args: argparse.Namespace) -> int:
     if not policy_path.exists():
         print("[2/3] training coda_kvm with lerobot-train")
         shutil.rmtree(train_dir, ignore_errors=True)
-        _run(train_command(dataset_root, repo_id, train_dir, args.steps, args.batch_size, args.seed))
+        run_logged(train_command(dataset_root, repo_id, train_dir, args.steps, args.batch_size, args.seed))
     else:
         print(f"[2/3] reusing trained policy {policy_path}")
 
     print("[3/3] evaluating with lerobot-eval")
     eval_dir = out / f"eval_{args.variant}"
     shutil.rmtree(eval_dir, ignore_errors=True)
-    _run(eval_command(policy_path, eval_dir, "egg_vs_stone", args.variant, args.eval_episodes, args.seed))
+    run_logged(eval_command(policy_path, eval_dir, "egg_vs_stone", args.variant, args.eval_episodes, args.seed))
     info = json.loads((eval_dir / "eval_info.json").read_text())
     overall = info["overall"]
     catastrophes = sum(r < 0 for task in info["per_task"] for r in task["metrics"]["sum_rewards"])

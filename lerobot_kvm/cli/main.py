@@ -3,10 +3,11 @@
 import argparse
 import sys
 
-from . import catalogue, check_suite, contact_sheet, demo, kvm_check, overhead, record
+from . import catalogue, check_suite, contact_sheet, demo, kvm_check, overhead, record, train_continual
 
 COMMANDS = {
     "record": record,
+    "train-continual": train_continual,
     "demo": demo,
     "check-suite": check_suite,
     "contact-sheet": contact_sheet,

@@ -7,7 +7,7 @@ from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig, _make_vec_env_cls
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
 
-from .scenario import VARIANTS, resolve_tasks
+from .scenario import INSTRUCTIONS, VARIANTS, resolve_tasks
 from .sensing import ACTION_NAMES, CONTEXT_NAMES, STATE_NAMES
 
 OBS_CONTEXT = "observation.context"
@@ -16,10 +16,15 @@ OBS_CONTEXT = "observation.context"
 @EnvConfig.register_subclass("kvm_obsolescence")
 @dataclass
 class KvmObsolescenceEnvConfig(EnvConfig):
-    """`task` is a scenario id, a category (`A`, `B`, `C`), `all`, or a comma list of those."""
+    """`task` is a scenario id, a category (`A`, `B`, `C`), `all`, or a comma list of those.
+
+    `instruction`: what each episode asks for: the variant's own instruction (`variant`), or the instruction
+    naming the scenario's `prior` or `safe` skill ("gently pick up the stone").
+    """
 
     task: str | None = "egg_vs_stone"
     variant: str = "prior"
+    instruction: str = "variant"
     fps: int = 20
     image_size: int = 96
     episode_length: int | None = None  # default: the scenario's own max_steps
@@ -37,6 +42,8 @@ class KvmObsolescenceEnvConfig(EnvConfig):
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
             raise ValueError(f"env.variant must be one of {VARIANTS}, got {self.variant!r}")
+        if self.instruction not in INSTRUCTIONS:
+            raise ValueError(f"env.instruction must be one of {INSTRUCTIONS}, got {self.instruction!r}")
         resolve_tasks(self.task or "")  # fail early on unknown names
         self.features = {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(len(ACTION_NAMES),)),
@@ -49,6 +56,7 @@ class KvmObsolescenceEnvConfig(EnvConfig):
     def gym_kwargs(self) -> dict:
         return {
             "variant": self.variant,
+            "instruction": self.instruction,
             "image_size": self.image_size,
             "fps": self.fps,
             "max_episode_steps": self.episode_length,

@@ -38,12 +38,14 @@ class KvmObsolescenceEnv(gym.Env):
         max_episode_steps: int | None = None,
         render_mode: str = "rgb_array",
         render_size: int = 256,
+        instruction: str = "variant",
     ) -> None:
         self.scenario = make_scenario(task)
         check_variant(variant, self.scenario.info)
         self.task = task
         self.variant = variant
-        self.task_description = self.scenario.info.instructions[variant]
+        self.instruction = instruction
+        self.task_description = self.scenario.info.instruction(variant, instruction)
         self.cameras = tuple(cameras)
         self.image_size = image_size
         self.render_mode = render_mode
@@ -88,7 +90,7 @@ class KvmObsolescenceEnv(gym.Env):
         if options and "variant" in options:
             check_variant(options["variant"], self.scenario.info)
             self.variant = options["variant"]
-            self.task_description = self.scenario.info.instructions[self.variant]
+            self.task_description = self.scenario.info.instruction(self.variant, self.instruction)
         mujoco.mj_resetData(self.model, self.data)
         self.scenario.reset(self.model, self.data, self.variant, self.np_random)
         mujoco.mj_forward(self.model, self.data)

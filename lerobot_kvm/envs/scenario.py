@@ -17,6 +17,8 @@ if TYPE_CHECKING:
     from .env import KvmObsolescenceEnv
 
 VARIANTS = ("prior", "shifted", "control")
+# What an episode asks for: the variant's own instruction, or the instruction naming the prior / safe skill.
+INSTRUCTIONS = ("variant", "prior", "safe")
 CATEGORIES = {"A": "physical property mismatch", "B": "interaction precondition", "C": "representational similarity"}
 
 
@@ -44,6 +46,14 @@ class ScenarioInfo:
         missing = [v for v in self.variants if v not in self.instructions]
         if missing:
             raise ValueError(f"scenario {self.id!r}: no instruction for variants {missing}")
+
+    def instruction(self, variant: str, ask: str = "variant") -> str:
+        """The task string of an episode on `variant` that asks for `ask` (one of `INSTRUCTIONS`)."""
+        if ask not in INSTRUCTIONS:
+            raise ValueError(f"instruction must be one of {INSTRUCTIONS}, got {ask!r}")
+        if ask == "variant":
+            return self.instructions[variant]
+        return self.skill_instructions[self.prior_skill if ask == "prior" else self.safe_skill]
 
 
 @dataclass

@@ -9,6 +9,9 @@ Differences that fix pitfalls of the official code:
 * each task's slice is its own set of `nn.Parameter`s, so earlier tasks are frozen by `requires_grad=False`
   and never receive a gradient, weight decay or momentum: they stay bit-identical;
 * the task counter and the skill table (names, descriptions) are persistent buffers in the state dict;
+* optional query separation (not in CODA-Prompt): each skill keeps the mean of its training queries (one
+  query_dim vector, no data), and a new skill's components can be trained to give those earlier queries
+  zero relevance, so that learning a task does not change the prompt earlier tasks receive;
 * new rows are made orthogonal to the span of all earlier rows (earlier rows are first orthonormalised,
   since trained rows are no longer mutually orthogonal).
 
@@ -99,6 +102,8 @@ class CodaPromptPool(nn.Module):
         )
         self.register_buffer("task_count", torch.zeros(1, dtype=torch.int64))
         self.register_buffer("skill_table", torch.zeros(SKILL_TABLE_BYTES_PER_TASK * n_tasks, dtype=torch.uint8))
+        self.register_buffer("skill_queries", torch.zeros(n_tasks, query_dim))
+        self.register_buffer("skill_query_counts", torch.zeros(n_tasks, dtype=torch.int64))
         self.register_load_state_dict_post_hook(CodaPromptPool._after_load)
         self.refresh_trainable()
 
@@ -205,6 +210,25 @@ class CodaPromptPool(nn.Module):
                 raise ValueError(f"skill_weights must have shape {expected}, got {tuple(skill_weights.shape)}")
             alphas = alphas * skill_weights.to(alphas).repeat_interleave(self.per_task, dim=-1)
         return torch.einsum("lbm,lmkd->lbkd", alphas, self._visible("prompts"))
+
+    @torch.no_grad()
+    def observe_queries(self, query: Tensor) -> None:
+        """Fold training queries [B, Dq] into the current skill's running mean query."""
+        t = self.n_skills - 1
+        seen = self.skill_query_counts[t].to(query.dtype)
+        self.skill_queries[t] = (self.skill_queries[t] * seen + query.sum(0)) / (seen + query.shape[0])
+        self.skill_query_counts[t] += query.shape[0]
+
+    def separation_penalty(self) -> Tensor:
+        """Mean squared alpha of the current skill's components on the earlier skills' mean queries."""
+        t = self.n_skills - 1
+        earlier = self.skill_query_counts[:t] > 0
+        if not bool(earlier.any()):
+            return torch.zeros((), device=self.task_count.device)
+        current = self.tasks[t]
+        keys = F.normalize(current.keys, dim=-1)
+        attended = F.normalize(torch.einsum("bd,lmd->lbmd", self.skill_queries[:t][earlier], current.attn), dim=-1)
+        return torch.einsum("lbmd,lmd->lbm", attended, keys).pow(2).mean()
 
     def ortho_penalty(self) -> Tensor:
         """Official CODA orthogonality regulariser: mean ||R R^T - I||^2 over the visible rows of K, A, P."""

@@ -249,6 +249,12 @@ class CodaKvmPolicy(PreTrainedPolicy):
         l1 = err.sum() / (valid.sum() * pred.shape[-1]).clamp_min(1)
         info = {"l1_loss": l1.item()}
         loss = per_sample if reduction == "none" else l1
+        if self.training:
+            self.pool.observe_queries(query)
+        if self.config.query_separation_weight > 0 and self.training:
+            separation = self.pool.separation_penalty()
+            loss = loss + self.config.query_separation_weight * separation
+            info["separation_loss"] = separation.item()
         if self.config.ortho_weight > 0:
             ortho = self.pool.ortho_penalty()
             loss = loss + self.config.ortho_weight * ortho

@@ -110,3 +110,16 @@ def test_context_is_identical_between_variants_until_the_robot_touches_something
         assert holds_tool(env.model) or prior_contact == 0
         return
     np.testing.assert_allclose(np.stack(prior[:until]), np.stack(shifted[:until]), rtol=0, atol=1e-6)
+
+
+def test_instruction_option_asks_for_the_variant_or_a_named_skill():
+    from lerobot_kvm.envs.configuration_kvm_obsolescence import KvmObsolescenceEnvConfig
+
+    env = KvmObsolescenceEnv(task="egg_vs_stone", instruction="safe")
+    assert env.task_description == "gently pick up the stone"
+    env.reset(seed=0, options={"variant": "shifted"})
+    assert env.task_description == "gently pick up the stone"  # the skill's instruction names the prior object
+    env.close()
+    assert KvmObsolescenceEnvConfig(instruction="prior").gym_kwargs["instruction"] == "prior"
+    with pytest.raises(ValueError, match="loudly"):
+        KvmObsolescenceEnvConfig(instruction="loudly")

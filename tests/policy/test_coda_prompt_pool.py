@@ -120,3 +120,39 @@ def test_skill_table_overflow_is_an_error() -> None:
 def test_orthogonality_penalty_is_zero_right_after_gram_schmidt() -> None:
     pool = make_pool(3)
     assert pool.ortho_penalty().item() < 1e-10
+
+
+def test_each_skill_keeps_the_mean_of_its_training_queries() -> None:
+    pool = make_pool(1)
+    a, b = torch.randn(4, 16), torch.randn(2, 16)
+    pool.observe_queries(a)
+    pool.observe_queries(b)
+    assert torch.allclose(pool.skill_queries[0], torch.cat([a, b]).mean(0), atol=1e-6)
+    assert pool.skill_query_counts.tolist() == [6, 0, 0]
+    state = pool.state_dict()
+    assert "skill_queries" in state and "skill_query_counts" in state
+
+
+def test_separation_penalty_is_the_new_components_squared_alpha_on_earlier_queries() -> None:
+    pool = make_pool(1)
+    assert pool.separation_penalty().item() == 0.0  # no earlier skill
+    old_query = torch.randn(5, 16)
+    pool.observe_queries(old_query)
+    pool.begin_skill("next")
+    expected = hand_alphas(pool, old_query.mean(0, keepdim=True).numpy().astype(np.float64))[:, :, 2:]  # new rows
+    assert pool.separation_penalty().item() == pytest.approx(float((expected**2).mean()), rel=1e-5)
+
+
+def test_separation_training_silences_new_components_on_old_queries_and_leaves_old_rows_alone() -> None:
+    pool = make_pool(1)
+    pool.observe_queries(torch.randn(8, 16))
+    pool.begin_skill("next")
+    old = {k: v.clone() for k, v in pool.tasks[0].state_dict().items()}
+    before = pool.separation_penalty().item()
+    optimizer = torch.optim.Adam([p for p in pool.parameters() if p.requires_grad], lr=0.05)
+    for _ in range(100):
+        optimizer.zero_grad()
+        pool.separation_penalty().backward()
+        optimizer.step()
+    assert pool.separation_penalty().item() < 0.01 * before
+    assert all(torch.equal(v, pool.tasks[0].state_dict()[k]) for k, v in old.items())

@@ -1,0 +1,1 @@
+"""Measurement pipelines: continual-learning sequences (and, later, the obsolescence benchmark)."""

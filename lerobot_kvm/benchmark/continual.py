@@ -1,0 +1,377 @@
+"""A continual-learning sequence run through LeRobot's own CLIs.
+
+One dataset is recorded for the whole sequence, so every stage is normalised with the same statistics; each
+stage is a real `lerobot-train` run on that stage's episodes (`--dataset.episodes=[...]`), starting from the
+previous stage's checkpoint (`--policy.path=...`). `coda_kvm` begins a new skill per stage (new CODA
+components, earlier ones frozen); LeRobot's ACT is fine-tuned the plain way. After every stage each task
+learned so far is evaluated with the real `lerobot-eval`. A joint method trains once on every task.
+
+A sequence may begin with a pretraining stage on tasks outside the sequence (other scenarios), the counterpart
+of the ImageNet-pretrained ViT that CODA-Prompt prompts: every method starts from its own pretraining on the
+same episodes, and the pretraining tasks are never scored.
+
+Finished stages and evaluations are kept on disk, so an interrupted run resumes where it stopped.
+"""
+
+import json
+import platform
+import shlex
+import shutil
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field, replace
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from ..cli.lerobot_commands import eval_command, run_logged, train_command
+from ..datasets.recorder import RecordingSpec, RecordItem, load_labels, record_dataset
+from ..envs.scenario import make_scenario
+from .cl_metrics import cl_metrics, joint_metrics
+
+CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"
+POLICIES = ("coda_kvm", "act")
+MODES = ("sequential", "joint")
+
+
+@dataclass
+class TaskSpec:
+    """One task of the sequence: a scenario variant solved by its `prior` or `safe` expert skill, asked for by
+    the variant's own instruction (`variant`) or by the instruction naming the skill (`skill`)."""
+
+    scenario: str
+    variant: str = "prior"
+    skill: str = "prior"
+    instruction: str = "variant"
+
+    def __post_init__(self) -> None:
+        if self.skill not in ("prior", "safe"):
+            raise ValueError(f"task {self.scenario}: skill must be 'prior' or 'safe', got {self.skill!r}")
+        self.record_item(1)  # unknown scenario, variant or instruction fail here, named in the message
+
+    @property
+    def expert_skill(self) -> str:
+        info = make_scenario(self.scenario).info
+        return info.prior_skill if self.skill == "prior" else info.safe_skill
+
+    @property
+    def name(self) -> str:
+        """The task's id, and the name of the CODA skill that learns it."""
+        return f"{self.scenario}.{self.expert_skill}"
+
+    @property
+    def env_instruction(self) -> str:
+        """`--env.instruction` that asks for this task the way it was recorded."""
+        return "variant" if self.instruction == "variant" else self.skill
+
+    def record_item(self, episodes: int) -> RecordItem:
+        return RecordItem(self.scenario, self.variant, self.expert_skill, episodes, self.instruction)
+
+
+@dataclass
+class MethodSpec:
+    """How one method learns the sequence: `policy` type, `sequential` stages or one `joint` run."""
+
+    name: str
+    policy: str = "coda_kvm"
+    mode: str = "sequential"
+    steps_per_stage: int = 500
+    pretrain_steps: int = 0  # steps of the pretraining stage (when the sequence has pretraining tasks)
+    batch_size: int = 32
+    args: list[str] = field(default_factory=list)  # extra `lerobot-train` arguments for every stage
+    later_stage_args: list[str] = field(default_factory=list)  # ... only for stages after the first
+
+    def __post_init__(self) -> None:
+        if self.policy not in POLICIES:
+            raise ValueError(f"method {self.name}: policy must be one of {POLICIES}, got {self.policy!r}")
+        if self.mode not in MODES:
+            raise ValueError(f"method {self.name}: mode must be one of {MODES}, got {self.mode!r}")
+        if self.steps_per_stage < 1 or self.batch_size < 1 or self.pretrain_steps < 0:
+            raise ValueError(f"method {self.name}: steps_per_stage and batch_size must be >= 1, pretrain_steps >= 0")
+
+
+@dataclass
+class SequenceConfig:
+    name: str
+    tasks: list[TaskSpec]
+    methods: list[MethodSpec]
+    pretrain_tasks: list[TaskSpec] = field(default_factory=list)
+    seed: int = 0
+    episodes_per_task: int = 30
+    pretrain_episodes_per_task: int = 20
+    eval_episodes: int = 10
+    eval_seed: int = 100_000  # far from the recording seeds: evaluation starts are held out
+    dataset_root: str | None = None
+
+    def __post_init__(self) -> None:
+        if not self.tasks:
+            raise ValueError("a sequence needs at least one task")
+        names = [t.name for t in self.tasks]
+        names += [t.name for t in self.pretrain_tasks]
+        if len(set(names)) != len(names):
+            raise ValueError(f"tasks and pretraining tasks must all be distinct, got {names}")
+        if self.pretrain_tasks and not all(m.pretrain_steps for m in self.methods):
+            raise ValueError("the sequence has pretraining tasks: every method needs pretrain_steps >= 1")
+        if not self.methods or len({m.name for m in self.methods}) != len(self.methods):
+            raise ValueError("a sequence needs at least one method, with distinct names")
+
+    @classmethod
+    def from_json(cls, path: str | Path) -> "SequenceConfig":
+        raw = json.loads(Path(path).read_text())
+        unknown = set(raw) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"{path}: unknown keys {sorted(unknown)}")
+        raw["tasks"] = [TaskSpec(**t) for t in raw.get("tasks", [])]
+        raw["pretrain_tasks"] = [TaskSpec(**t) for t in raw.get("pretrain_tasks", [])]
+        raw["methods"] = [MethodSpec(**m) for m in raw.get("methods", [])]
+        return cls(**raw)
+
+    @property
+    def repo_id(self) -> str:
+        return f"local/kvm_cl_{self.name}"
+
+    def recording_spec(self) -> RecordingSpec:
+        items = [t.record_item(self.pretrain_episodes_per_task) for t in self.pretrain_tasks]
+        items += [t.record_item(self.episodes_per_task) for t in self.tasks]
+        return RecordingSpec(name=f"kvm_cl_{self.name}", items=items, seed=self.seed)
+
+
+def task_episodes(dataset_root: Path, tasks: Sequence[TaskSpec]) -> list[list[int]]:
+    """The dataset's episode indices of each task, from the recorder's labels."""
+    episodes = load_labels(dataset_root)["episodes"]
+    out = []
+    for task in tasks:
+        text = task.record_item(1).task_string()
+        mine = [
+            e["episode_index"]
+            for e in episodes
+            if (e["scenario"], e["variant"], e["skill"], e["task"])
+            == (task.scenario, task.variant, task.expert_skill, text)
+        ]
+        if not mine:
+            raise ValueError(f"dataset {dataset_root} has no episode of task {task.name}")
+        out.append(mine)
+    return out
+
+
+def _versions() -> dict[str, str]:
+    names = ("lerobot", "torch", "mujoco", "lerobot_policy_coda_kvm")
+    found = {}
+    for name in names:
+        try:
+            found[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            found[name] = "not installed"
+    return {"python": platform.python_version(), **found}
+
+
+class ContinualRun:
+    """Runs (or resumes) every method of a `SequenceConfig` under `output_dir`."""
+
+    def __init__(
+        self,
+        config: SequenceConfig,
+        output_dir: Path,
+        launcher: Sequence[str] = (),
+        config_path: str = "",
+        only: Sequence[str] | None = None,
+    ) -> None:
+        """`only`: names of the methods to run now; the results of the others, if an earlier invocation finished
+        them, are kept in `cl_results.json`."""
+        self.all_methods = list(config.methods)
+        if only is not None:
+            unknown = sorted(set(only) - {m.name for m in config.methods})
+            if unknown:
+                raise ValueError(f"unknown methods {unknown}; the config has {[m.name for m in config.methods]}")
+            config = replace(config, methods=[m for m in config.methods if m.name in only])
+        self.config = config
+        self.out = Path(output_dir)
+        self.launcher = list(launcher)
+        self.config_path = config_path
+        self.dataset_root = Path(config.dataset_root or f"datasets/kvm_cl_{config.name}")
+        self.results_path = self.out / "cl_results.json"
+
+    # ------------------------------------------------------------------ stages
+    def _policy_args(self, method: MethodSpec, previous: Path | None, skill: str | None) -> list[str]:
+        if previous is None:
+            args = [f"--policy.type={method.policy}", *method.args]
+        else:
+            args = [f"--policy.path={previous}", *method.args, *method.later_stage_args]
+        if method.policy == "coda_kvm" and skill is not None:
+            args.append(f"--policy.skill_name={skill}")
+        return args
+
+    def _pretrain(self, method: MethodSpec, episodes: list[list[int]], bar: tqdm) -> Path | None:
+        """The method's pretraining stage on the pretraining tasks (None when the sequence has none)."""
+        if not self.config.pretrain_tasks:
+            return None
+        bar.set_description(f"{method.name}: pretraining")
+        stage = MethodSpec(**{**asdict(method), "steps_per_stage": method.pretrain_steps})
+        everything = sorted(e for task_eps in episodes for e in task_eps)
+        checkpoint = self._train(
+            stage, self.out / method.name / "pretrain", self._policy_args(method, None, "pretrain"), everything
+        )
+        bar.update()
+        return checkpoint
+
+    def _train(self, method: MethodSpec, stage_dir: Path, policy: list[str], episodes: list[int]) -> Path:
+        """One `lerobot-train` run; a finished stage is reused, an interrupted one starts again."""
+        run_dir = stage_dir / "train"
+        checkpoint = run_dir / CHECKPOINT
+        if checkpoint.exists():
+            return checkpoint
+        shutil.rmtree(run_dir, ignore_errors=True)  # lerobot-train refuses an existing output dir
+        cmd = train_command(
+            self.dataset_root,
+            self.config.repo_id,
+            run_dir,
+            method.steps_per_stage,
+            method.batch_size,
+            self.config.seed,
+            policy=policy,
+            episodes=episodes,
+            launcher=self.launcher,
+        )
+        run_logged(cmd, stage_dir / "train.log")
+        return checkpoint
+
+    def _evaluate(self, checkpoint: Path, eval_dir: Path, tasks: Sequence[TaskSpec]) -> dict[str, float]:
+        """Success rate of each task: one `lerobot-eval` per (variant, instruction) group of tasks."""
+        groups: dict[tuple[str, str], list[TaskSpec]] = {}
+        for task in tasks:
+            groups.setdefault((task.variant, task.env_instruction), []).append(task)
+        success: dict[str, float] = {}
+        for (variant, instruction), members in groups.items():
+            out = eval_dir / f"{variant}_{instruction}"
+            info_path = out / "eval_info.json"
+            if not info_path.exists():
+                shutil.rmtree(out, ignore_errors=True)
+                scenarios = ",".join(t.scenario for t in members)
+                cmd = eval_command(
+                    checkpoint, out, scenarios, variant, self.config.eval_episodes, self.config.eval_seed, instruction
+                )
+                run_logged(cmd, eval_dir / f"{variant}_{instruction}.log")
+            info = json.loads(info_path.read_text())
+            per_task = {entry["task_group"]: entry["metrics"] for entry in info["per_task"]}
+            for task in members:
+                flags = per_task[task.scenario]["successes"]
+                success[task.name] = sum(bool(f) for f in flags) / len(flags)
+        return success
+
+    # ------------------------------------------------------------------ methods
+    def _run_sequential(
+        self, method: MethodSpec, episodes: list[list[int]], previous: Path | None, bar: tqdm
+    ) -> dict[str, Any]:
+        tasks = self.config.tasks
+        matrix: list[list[float | None]] = []
+        stage_times = []
+        for k, task in enumerate(tasks):
+            stage_dir = self.out / method.name / f"stage_{k}_{task.name}"
+            bar.set_description(f"{method.name}: stage {k + 1}/{len(tasks)} {task.name}")
+            start = time.time()
+            previous = self._train(method, stage_dir, self._policy_args(method, previous, task.name), episodes[k])
+            stage_times.append(time.time() - start)
+            bar.update()
+            success = self._evaluate(previous, stage_dir / "eval", tasks[: k + 1])
+            matrix.append([success.get(t.name) for t in tasks])
+            bar.update()
+        return {
+            "mode": "sequential",
+            "success_matrix": matrix,
+            "final": matrix[-1],
+            "metrics": cl_metrics(matrix),
+            "train_wall_s": stage_times,
+        }
+
+    def _run_joint(
+        self, method: MethodSpec, episodes: list[list[int]], previous: Path | None, bar: tqdm
+    ) -> dict[str, Any]:
+        stage_dir = self.out / method.name / "joint"
+        bar.set_description(f"{method.name}: all {len(self.config.tasks)} tasks")
+        start = time.time()
+        everything = sorted(e for task_eps in episodes for e in task_eps)
+        checkpoint = self._train(method, stage_dir, self._policy_args(method, previous, "joint"), everything)
+        train_s = time.time() - start
+        bar.update()
+        success = self._evaluate(checkpoint, stage_dir / "eval", self.config.tasks)
+        bar.update()
+        final = [success[t.name] for t in self.config.tasks]
+        return {"mode": "joint", "final": final, "metrics": joint_metrics(final), "train_wall_s": [train_s]}
+
+    def run(self) -> dict[str, Any]:
+        start = time.time()
+        self.out.mkdir(parents=True, exist_ok=True)
+        if not self.dataset_root.exists():
+            print(f"recording {self.dataset_root}")
+            record_dataset(self.config.recording_spec(), self.dataset_root, repo_id=self.config.repo_id)
+        episodes = task_episodes(self.dataset_root, self.config.tasks)
+        pretrain_episodes = task_episodes(self.dataset_root, self.config.pretrain_tasks)
+        n_jobs = sum(
+            2 * (len(self.config.tasks) if m.mode == "sequential" else 1) + bool(pretrain_episodes)
+            for m in self.config.methods
+        )
+        results: dict[str, Any] = {}
+        with tqdm(total=n_jobs, unit="job") as bar:
+            for method in self.config.methods:
+                runner = self._run_sequential if method.mode == "sequential" else self._run_joint
+                began = time.time()
+                start = self._pretrain(method, pretrain_episodes, bar)
+                result = runner(method, episodes, start, bar)
+                results[method.name] = {"policy": method.policy, **result, "wall_time_s": time.time() - began}
+        kept = {}  # methods of the config finished by an earlier invocation (e.g. `--methods` one at a time)
+        if self.results_path.exists():
+            earlier = json.loads(self.results_path.read_text()).get("methods", {})
+            kept = {m.name: earlier[m.name] for m in self.all_methods if m.name in earlier and m.name not in results}
+        merged = {**kept, **results}
+        report = {
+            "sequence": self.config.name,
+            "config_path": self.config_path,
+            "config": asdict(replace(self.config, methods=self.all_methods)),
+            "tasks": [t.name for t in self.config.tasks],
+            "episodes_per_task": [len(e) for e in episodes],
+            "pretrain_tasks": [t.name for t in self.config.pretrain_tasks],
+            "pretrain_episodes": sum(len(e) for e in pretrain_episodes),
+            "dataset_root": str(self.dataset_root),
+            "seeds": {"train": self.config.seed, "record": self.config.seed, "eval": self.config.eval_seed},
+            "launcher": shlex.join(self.launcher),
+            "methods": {m.name: merged[m.name] for m in self.all_methods if m.name in merged},
+            "versions": _versions(),
+            "wall_time_s": time.time() - start,
+        }
+        self.results_path.write_text(json.dumps(report, indent=2))
+        (self.out / "cl_report.md").write_text(markdown_report(report))
+        return report
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.0f}"
+
+
+def markdown_report(report: dict[str, Any]) -> str:
+    """Metrics per method, then each method's success matrix (rows: after stage, columns: task)."""
+    tasks = report["tasks"]
+    lines = [
+        f"# Continual learning: sequence `{report['sequence']}`",
+        "",
+        f"{len(tasks)} tasks, {report['config']['eval_episodes']} evaluation episodes per task and stage "
+        f"(seed {report['seeds']['eval']}), wall time {report['wall_time_s'] / 60:.1f} min.",
+        "",
+        "| method | policy | mode | A_N (%) | F_N (pp) | FWT (%) | NBT (pp) | AUC (%) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, res in report["methods"].items():
+        m = res["metrics"]
+        cells = [_pct(m.get(key)) for key in ("A_N", "F_N", "FWT", "NBT", "AUC")]
+        lines.append(f"| {name} | {res['policy']} | {res['mode']} | " + " | ".join(cells) + " |")
+    lines += ["", "A_N / F_N: CODA-Prompt's final average success and forgetting; FWT / NBT / AUC: LIBERO's.", ""]
+    header = "| after stage | " + " | ".join(f"{j}: {t}" for j, t in enumerate(tasks)) + " |"
+    for name, res in report["methods"].items():
+        lines += [f"## {name}: success (%)", "", header, "|---|" + "---|" * len(tasks)]
+        rows = res.get("success_matrix") or [res["final"]]
+        labels = [f"{i}: {tasks[i]}" for i in range(len(rows))] if res["mode"] == "sequential" else ["all (joint)"]
+        for label, row in zip(labels, rows, strict=True):
+            lines.append(f"| {label} | " + " | ".join(_pct(v) for v in row) + " |")
+        lines.append("")
+    return "\n".join(lines)

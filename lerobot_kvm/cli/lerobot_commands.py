@@ -1,0 +1,92 @@
+"""Command lines of LeRobot's own CLIs (`lerobot-train`, `lerobot-eval`) as our pipelines run them.
+
+Pipelines run the real tools as subprocesses and print each command, so that every stage can be copied and
+varied by hand.
+"""
+
+import shlex
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+
+def lerobot_bin(name: str) -> str:
+    """The console script next to this interpreter (the venv's), else from PATH."""
+    local = Path(sys.executable).parent / name
+    return str(local) if local.exists() else name
+
+
+def run_logged(cmd: Sequence[str], log: Path | None = None) -> None:
+    """Run `cmd`, printing it first; with `log`, its output goes to that file (quoted on failure)."""
+    print("\n$ " + shlex.join(cmd), flush=True)
+    if log is None:
+        subprocess.run(list(cmd), check=True)
+        return
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with log.open("w") as handle:
+        proc = subprocess.run(list(cmd), stdout=handle, stderr=subprocess.STDOUT)
+    if proc.returncode:
+        tail = "".join(log.read_text().splitlines(keepends=True)[-40:])
+        raise RuntimeError(f"{Path(cmd[0]).name} failed with exit code {proc.returncode} (log: {log}):\n{tail}")
+
+
+def train_command(
+    dataset_root: Path,
+    repo_id: str,
+    output_dir: Path,
+    steps: int,
+    batch_size: int,
+    seed: int,
+    policy: Sequence[str] = ("--policy.type=coda_kvm",),
+    episodes: Sequence[int] | None = None,
+    extra: Sequence[str] = (),
+    launcher: Sequence[str] = (),
+) -> list[str]:
+    """`lerobot-train` on a local dataset (optionally a subset of its episodes); `policy` names the policy
+    (`--policy.type=...` or `--policy.path=...`), `launcher` prefixes a multi-process launcher."""
+    launcher = [lerobot_bin(launcher[0]), *launcher[1:]] if launcher else []
+    cmd = [*launcher, lerobot_bin("lerobot-train"), *policy]
+    cmd += [
+        f"--dataset.repo_id={repo_id}",
+        f"--dataset.root={dataset_root}",
+        "--policy.push_to_hub=false",
+        "--policy.device=cpu",
+        f"--output_dir={output_dir}",
+        f"--steps={steps}",
+        f"--batch_size={batch_size}",
+        f"--save_freq={steps}",
+        f"--log_freq={max(1, min(100, steps // 4))}",
+        "--num_workers=1",
+        f"--seed={seed}",
+        "--wandb.enable=false",
+    ]
+    if episodes is not None:
+        cmd.append("--dataset.episodes=[" + ",".join(str(e) for e in episodes) + "]")
+    return [*cmd, *extra]
+
+
+def eval_command(
+    policy_path: Path,
+    output_dir: Path,
+    task: str,
+    variant: str,
+    episodes: int,
+    seed: int,
+    instruction: str = "variant",
+) -> list[str]:
+    """`lerobot-eval` of a checkpoint on scenario(s) `task` of the simulated suite."""
+    return [
+        lerobot_bin("lerobot-eval"),
+        f"--policy.path={policy_path}",
+        "--env.type=kvm_obsolescence",
+        f"--env.task={task}",
+        f"--env.variant={variant}",
+        f"--env.instruction={instruction}",
+        f"--eval.n_episodes={episodes}",
+        f"--eval.batch_size={min(episodes, 10)}",
+        "--eval.use_async_envs=false",
+        "--policy.device=cpu",
+        f"--output_dir={output_dir}",
+        f"--seed={seed}",
+    ]

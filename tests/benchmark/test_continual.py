@@ -1,0 +1,100 @@
+"""The continual-learning sequence: config validation (fast) and a tiny real run of every method (slow)."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from lerobot_kvm.benchmark.continual import MethodSpec, SequenceConfig, TaskSpec
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+
+
+def test_every_shipped_sequence_config_loads():
+    for path in sorted(CONFIGS.glob("cl_*.json")):
+        config = SequenceConfig.from_json(path)
+        assert config.tasks and config.methods, path
+
+
+def test_default_sequence_has_six_distinct_tasks_from_prior_variants_and_safe_skills():
+    config = SequenceConfig.from_json(CONFIGS / "cl_default.json")
+    assert len({t.name for t in config.tasks}) >= 6
+    assert {t.variant for t in config.tasks} == {"prior"}  # leakage rule: no shifted variant before the benchmark
+    assert {m.policy for m in config.methods} == {"coda_kvm", "act"}
+    assert {m.mode for m in config.methods if m.policy == "act"} == {"sequential", "joint"}
+
+
+def test_task_names_and_instructions():
+    task = TaskSpec("chip_bag", skill="safe", instruction="skill")
+    assert task.name == "chip_bag.gentle_grasp"
+    assert task.env_instruction == "safe"
+    assert task.record_item(3).task_string() == "gently pick up the bag of chips"
+    assert TaskSpec("egg_vs_stone").env_instruction == "variant"
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda: TaskSpec("no_such_scenario"), "no_such_scenario"),
+        (lambda: TaskSpec("egg_vs_stone", variant="sideways"), "sideways"),
+        (lambda: TaskSpec("egg_vs_stone", skill="clumsy"), "clumsy"),
+        (lambda: TaskSpec("egg_vs_stone", instruction="loud"), "loud"),
+        (lambda: MethodSpec("m", policy="diffusion"), "diffusion"),
+        (lambda: MethodSpec("m", mode="shuffled"), "shuffled"),
+        (lambda: SequenceConfig("s", [TaskSpec("book"), TaskSpec("book")], [MethodSpec("m")]), "distinct"),
+    ],
+)
+def test_bad_configs_are_rejected_with_the_offending_value(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
+
+
+def _identical(a: torch.nn.Module, b: torch.nn.Module) -> bool:
+    sa, sb = a.state_dict(), b.state_dict()
+    return sa.keys() == sb.keys() and all(torch.equal(v, sb[k]) for k, v in sa.items())
+
+
+@pytest.mark.slow
+def test_tiny_sequence_runs_every_method_through_the_real_clis(tmp_path):
+    from lerobot_kvm.policy import CodaKvmPolicy
+
+    env = {**os.environ, "MUJOCO_GL": "egl", "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
+    cmd = [
+        str(Path(sys.executable).parent / "lerobot-kvm"),
+        "train-continual",
+        f"--config={CONFIGS / 'cl_tiny.json'}",
+        f"--output-dir={tmp_path / 'out'}",
+        f"--dataset-root={tmp_path / 'data'}",
+        "--launcher=torchrun --standalone --nproc_per_node=2",  # every stage trains in two processes (gloo)
+    ]
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1500)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-5000:]
+
+    results = json.loads((tmp_path / "out" / "cl_results.json").read_text())
+    assert results["tasks"] == ["egg_vs_stone.firm_grasp", "chip_bag.gentle_grasp"]
+    coda = results["methods"]["coda_kvm"]
+    assert len(coda["success_matrix"]) == 2 and coda["success_matrix"][0][1] is None
+    assert set(coda["metrics"]) == {"A_N", "F_N", "FWT", "NBT", "AUC"}
+    assert len(results["methods"]["act_sequential"]["success_matrix"]) == 2
+    assert len(results["methods"]["act_joint"]["final"]) == 2
+    assert {"lerobot", "torch", "mujoco"} <= set(results["versions"])
+    assert "| coda_kvm | coda_kvm | sequential |" in (tmp_path / "out" / "cl_report.md").read_text()
+
+    # Each stage learned in new components: earlier components and the frozen backbone stay bit-identical.
+    root = tmp_path / "out" / "coda_kvm"
+    pretrained, first, second = (
+        CodaKvmPolicy.from_pretrained(next(root.glob(f"{stage}*/train/checkpoints/last/pretrained_model")))
+        for stage in ("pretrain", "stage_0", "stage_1")
+    )
+    assert [s.name for s in second.skills] == ["pretrain", *results["tasks"]]
+    assert _identical(pretrained.pool.tasks[0], second.pool.tasks[0])
+    assert _identical(first.pool.tasks[1], second.pool.tasks[1])
+    assert _identical(pretrained.backbone, second.backbone)
+
+    # A second invocation resumes: every stage and evaluation is found on disk and nothing is retrained.
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0 and "lerobot-train" not in proc.stdout
