@@ -317,8 +317,8 @@ class ContinualRun:
             for method in self.config.methods:
                 runner = self._run_sequential if method.mode == "sequential" else self._run_joint
                 began = time.time()
-                start = self._pretrain(method, pretrain_episodes, bar)
-                result = runner(method, episodes, start, bar)
+                pretrained = self._pretrain(method, pretrain_episodes, bar)
+                result = runner(method, episodes, pretrained, bar)
                 results[method.name] = {"policy": method.policy, **result, "wall_time_s": time.time() - began}
         kept = {}  # methods of the config finished by an earlier invocation (e.g. `--methods` one at a time)
         if self.results_path.exists():
