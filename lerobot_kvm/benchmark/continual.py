@@ -13,6 +13,7 @@ same episodes, and the pretraining tasks are never scored.
 Finished stages and evaluations are kept on disk, so an interrupted run resumes where it stopped.
 """
 
+import hashlib
 import json
 import platform
 import shlex
@@ -209,10 +210,11 @@ class ContinualRun:
             return None
         bar.set_description(f"{method.name}: pretraining")
         stage = MethodSpec(**{**asdict(method), "steps_per_stage": method.pretrain_steps})
+        # Methods with the same policy and training settings share one pretraining run (e.g. ACT's two modes).
+        key = json.dumps([method.policy, method.args, method.pretrain_steps, method.batch_size, self.launcher])
+        stage_dir = self.out / "pretrain" / f"{method.policy}-{hashlib.sha1(key.encode()).hexdigest()[:8]}"
         everything = sorted(e for task_eps in episodes for e in task_eps)
-        checkpoint = self._train(
-            stage, self.out / method.name / "pretrain", self._policy_args(method, None, "pretrain"), everything
-        )
+        checkpoint = self._train(stage, stage_dir, self._policy_args(method, None, "pretrain"), everything)
         bar.update()
         return checkpoint
 

@@ -85,10 +85,11 @@ def test_tiny_sequence_runs_every_method_through_the_real_clis(tmp_path):
     assert "| coda_kvm | coda_kvm | sequential |" in (tmp_path / "out" / "cl_report.md").read_text()
 
     # Each stage learned in new components: earlier components and the frozen backbone stay bit-identical.
-    root = tmp_path / "out" / "coda_kvm"
+    out = tmp_path / "out"
+    assert len(list((out / "pretrain").glob("act-*"))) == 1  # ACT's two modes share their pretraining run
     pretrained, first, second = (
-        CodaKvmPolicy.from_pretrained(next(root.glob(f"{stage}*/train/checkpoints/last/pretrained_model")))
-        for stage in ("pretrain", "stage_0", "stage_1")
+        CodaKvmPolicy.from_pretrained(next(out.glob(f"{stage}*/train/checkpoints/last/pretrained_model")))
+        for stage in ("pretrain/coda_kvm-", "coda_kvm/stage_0", "coda_kvm/stage_1")
     )
     assert [s.name for s in second.skills] == ["pretrain", *results["tasks"]]
     assert _identical(pretrained.pool.tasks[0], second.pool.tasks[0])

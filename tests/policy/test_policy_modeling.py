@@ -44,6 +44,21 @@ def test_per_sample_loss_and_ortho_penalty(make_policy, make_batch) -> None:
     assert "ortho_loss" in info
 
 
+def test_query_separation_loss_trains_the_new_skill_away_from_earlier_queries(make_policy, make_batch) -> None:
+    policy = make_policy(query_separation_weight=1.0)
+    policy.train()
+    batch = make_batch(policy.config)
+    assert policy.forward(batch)[1]["separation_loss"] == 0.0  # one skill: nothing to separate from
+    assert int(policy.pool.skill_query_counts[0]) == 3  # training queries folded into skill 0's mean
+    policy.begin_new_skill("next")
+    loss, info = policy.forward(batch)
+    assert info["separation_loss"] > 0.0
+    loss.backward()
+    assert policy.pool.tasks[1].keys.grad is not None and policy.pool.tasks[0].keys.grad is None
+    policy.eval()
+    assert "separation_loss" not in policy.forward(batch)[1]
+
+
 def test_frozen_backbone_trains_only_the_current_skill(make_policy, make_batch) -> None:
     policy = make_policy(train_backbone=False)
     groups = policy.get_optim_params()
