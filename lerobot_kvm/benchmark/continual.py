@@ -20,7 +20,7 @@ import shlex
 import shutil
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -73,7 +73,11 @@ class TaskSpec:
 
 @dataclass
 class MethodSpec:
-    """How one method learns the sequence: `policy` type, `sequential` stages or one `joint` run."""
+    """How one method learns the sequence: `policy` type, `sequential` stages or one `joint` run.
+
+    `checkpoints_from` names an earlier sequential method whose stage checkpoints this one evaluates instead of
+    training its own, with `eval_args` (e.g. `--policy.kvm.enabled=false`: the CODA-Prompt core of `coda_kvm`).
+    """
 
     name: str
     policy: str = "coda_kvm"
@@ -83,12 +87,16 @@ class MethodSpec:
     batch_size: int = 32
     args: list[str] = field(default_factory=list)  # extra `lerobot-train` arguments for every stage
     later_stage_args: list[str] = field(default_factory=list)  # ... only for stages after the first
+    eval_args: list[str] = field(default_factory=list)  # extra `lerobot-eval` arguments
+    checkpoints_from: str | None = None
 
     def __post_init__(self) -> None:
         if self.policy not in POLICIES:
             raise ValueError(f"method {self.name}: policy must be one of {POLICIES}, got {self.policy!r}")
         if self.mode not in MODES:
             raise ValueError(f"method {self.name}: mode must be one of {MODES}, got {self.mode!r}")
+        if self.checkpoints_from is not None and self.mode != "sequential":
+            raise ValueError(f"method {self.name}: checkpoints_from needs mode 'sequential'")
         if self.steps_per_stage < 1 or self.batch_size < 1 or self.pretrain_steps < 0:
             raise ValueError(f"method {self.name}: steps_per_stage and batch_size must be >= 1, pretrain_steps >= 0")
 
@@ -113,7 +121,15 @@ class SequenceConfig:
         names += [t.name for t in self.pretrain_tasks]
         if len(set(names)) != len(names):
             raise ValueError(f"tasks and pretraining tasks must all be distinct, got {names}")
-        if self.pretrain_tasks and not all(m.pretrain_steps for m in self.methods):
+        for i, m in enumerate(self.methods):
+            sources = {s.name: s for s in self.methods[:i] if s.mode == "sequential" and s.checkpoints_from is None}
+            if m.checkpoints_from is not None and m.checkpoints_from not in sources:
+                raise ValueError(
+                    f"method {m.name}: checkpoints_from={m.checkpoints_from!r} must name an earlier sequential "
+                    f"method that trains, one of {sorted(sources)}"
+                )
+        trained = [m for m in self.methods if m.checkpoints_from is None]
+        if self.pretrain_tasks and not all(m.pretrain_steps for m in trained):
             raise ValueError("the sequence has pretraining tasks: every method needs pretrain_steps >= 1")
         if not self.methods or len({m.name for m in self.methods}) != len(self.methods):
             raise ValueError("a sequence needs at least one method, with distinct names")
@@ -181,13 +197,12 @@ class ContinualRun:
     ) -> None:
         """`only`: names of the methods to run now; the results of the others, if an earlier invocation finished
         them, are kept in `cl_results.json`."""
-        self.all_methods = list(config.methods)
         if only is not None:
             unknown = sorted(set(only) - {m.name for m in config.methods})
             if unknown:
                 raise ValueError(f"unknown methods {unknown}; the config has {[m.name for m in config.methods]}")
-            config = replace(config, methods=[m for m in config.methods if m.name in only])
         self.config = config
+        self.methods = [m for m in config.methods if only is None or m.name in only]
         self.out = Path(output_dir)
         self.launcher = list(launcher)
         self.config_path = config_path
@@ -206,7 +221,7 @@ class ContinualRun:
 
     def _pretrain(self, method: MethodSpec, episodes: list[list[int]], bar: tqdm) -> Path | None:
         """The method's pretraining stage on the pretraining tasks (None when the sequence has none)."""
-        if not self.config.pretrain_tasks:
+        if not self.config.pretrain_tasks or method.checkpoints_from is not None:
             return None
         bar.set_description(f"{method.name}: pretraining")
         stage = MethodSpec(**{**asdict(method), "steps_per_stage": method.pretrain_steps})
@@ -239,7 +254,9 @@ class ContinualRun:
         run_logged(cmd, stage_dir / "train.log")
         return checkpoint
 
-    def _evaluate(self, checkpoint: Path, eval_dir: Path, tasks: Sequence[TaskSpec]) -> dict[str, float]:
+    def _evaluate(
+        self, checkpoint: Path, eval_dir: Path, tasks: Sequence[TaskSpec], extra: Sequence[str] = ()
+    ) -> dict[str, float]:
         """Success rate of each task: one `lerobot-eval` per (variant, instruction) group of tasks."""
         groups: dict[tuple[str, str], list[TaskSpec]] = {}
         for task in tasks:
@@ -252,7 +269,14 @@ class ContinualRun:
                 shutil.rmtree(out, ignore_errors=True)
                 scenarios = ",".join(t.scenario for t in members)
                 cmd = eval_command(
-                    checkpoint, out, scenarios, variant, self.config.eval_episodes, self.config.eval_seed, instruction
+                    checkpoint,
+                    out,
+                    scenarios,
+                    variant,
+                    self.config.eval_episodes,
+                    self.config.eval_seed,
+                    instruction,
+                    extra,
                 )
                 run_logged(cmd, eval_dir / f"{variant}_{instruction}.log")
             info = json.loads(info_path.read_text())
@@ -273,10 +297,15 @@ class ContinualRun:
             stage_dir = self.out / method.name / f"stage_{k}_{task.name}"
             bar.set_description(f"{method.name}: stage {k + 1}/{len(tasks)} {task.name}")
             start = time.time()
-            previous = self._train(method, stage_dir, self._policy_args(method, previous, task.name), episodes[k])
+            if method.checkpoints_from is None:
+                previous = self._train(method, stage_dir, self._policy_args(method, previous, task.name), episodes[k])
+            else:
+                previous = self.out / method.checkpoints_from / stage_dir.name / "train" / CHECKPOINT
+                if not previous.exists():
+                    raise FileNotFoundError(f"{method.name}: {previous} missing: run {method.checkpoints_from} first")
             stage_times.append(time.time() - start)
             bar.update()
-            success = self._evaluate(previous, stage_dir / "eval", tasks[: k + 1])
+            success = self._evaluate(previous, stage_dir / "eval", tasks[: k + 1], method.eval_args)
             matrix.append([success.get(t.name) for t in tasks])
             bar.update()
         return {
@@ -297,7 +326,7 @@ class ContinualRun:
         checkpoint = self._train(method, stage_dir, self._policy_args(method, previous, "joint"), everything)
         train_s = time.time() - start
         bar.update()
-        success = self._evaluate(checkpoint, stage_dir / "eval", self.config.tasks)
+        success = self._evaluate(checkpoint, stage_dir / "eval", self.config.tasks, method.eval_args)
         bar.update()
         final = [success[t.name] for t in self.config.tasks]
         return {"mode": "joint", "final": final, "metrics": joint_metrics(final), "train_wall_s": [train_s]}
@@ -311,12 +340,13 @@ class ContinualRun:
         episodes = task_episodes(self.dataset_root, self.config.tasks)
         pretrain_episodes = task_episodes(self.dataset_root, self.config.pretrain_tasks)
         n_jobs = sum(
-            2 * (len(self.config.tasks) if m.mode == "sequential" else 1) + bool(pretrain_episodes)
-            for m in self.config.methods
+            2 * (len(self.config.tasks) if m.mode == "sequential" else 1)
+            + bool(pretrain_episodes and m.checkpoints_from is None)
+            for m in self.methods
         )
         results: dict[str, Any] = {}
         with tqdm(total=n_jobs, unit="job") as bar:
-            for method in self.config.methods:
+            for method in self.methods:
                 runner = self._run_sequential if method.mode == "sequential" else self._run_joint
                 began = time.time()
                 pretrained = self._pretrain(method, pretrain_episodes, bar)
@@ -325,12 +355,12 @@ class ContinualRun:
         kept = {}  # methods of the config finished by an earlier invocation (e.g. `--methods` one at a time)
         if self.results_path.exists():
             earlier = json.loads(self.results_path.read_text()).get("methods", {})
-            kept = {m.name: earlier[m.name] for m in self.all_methods if m.name in earlier and m.name not in results}
+            kept = {m.name: earlier[m.name] for m in self.config.methods if m.name in earlier and m.name not in results}
         merged = {**kept, **results}
         report = {
             "sequence": self.config.name,
             "config_path": self.config_path,
-            "config": asdict(replace(self.config, methods=self.all_methods)),
+            "config": asdict(self.config),
             "tasks": [t.name for t in self.config.tasks],
             "episodes_per_task": [len(e) for e in episodes],
             "pretrain_tasks": [t.name for t in self.config.pretrain_tasks],
@@ -338,7 +368,7 @@ class ContinualRun:
             "dataset_root": str(self.dataset_root),
             "seeds": {"train": self.config.seed, "record": self.config.seed, "eval": self.config.eval_seed},
             "launcher": shlex.join(self.launcher),
-            "methods": {m.name: merged[m.name] for m in self.all_methods if m.name in merged},
+            "methods": {m.name: merged[m.name] for m in self.config.methods if m.name in merged},
             "versions": _versions(),
             "wall_time_s": time.time() - start,
         }

@@ -74,6 +74,7 @@ def eval_command(
     episodes: int,
     seed: int,
     instruction: str = "variant",
+    extra: Sequence[str] = (),
 ) -> list[str]:
     """`lerobot-eval` of a checkpoint on scenario(s) `task` of the simulated suite."""
     return [
@@ -89,4 +90,5 @@ def eval_command(
         "--policy.device=cpu",
         f"--output_dir={output_dir}",
         f"--seed={seed}",
+        *extra,
     ]

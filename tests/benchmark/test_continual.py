@@ -46,6 +46,8 @@ def test_task_names_and_instructions():
         (lambda: MethodSpec("m", policy="diffusion"), "diffusion"),
         (lambda: MethodSpec("m", mode="shuffled"), "shuffled"),
         (lambda: SequenceConfig("s", [TaskSpec("book"), TaskSpec("book")], [MethodSpec("m")]), "distinct"),
+        (lambda: SequenceConfig("s", [TaskSpec("book")], [MethodSpec("m", checkpoints_from="later")]), "later"),
+        (lambda: MethodSpec("m", mode="joint", checkpoints_from="x"), "sequential"),
     ],
 )
 def test_bad_configs_are_rejected_with_the_offending_value(make, message):
@@ -80,6 +82,8 @@ def test_tiny_sequence_runs_every_method_through_the_real_clis(tmp_path):
     assert len(coda["success_matrix"]) == 2 and coda["success_matrix"][0][1] is None
     assert set(coda["metrics"]) == {"A_N", "F_N", "FWT", "NBT", "AUC"}
     assert len(results["methods"]["act_sequential"]["success_matrix"]) == 2
+    assert len(results["methods"]["coda_prompt"]["success_matrix"]) == 2  # coda_kvm's checkpoints, KVM off
+    assert not (tmp_path / "out" / "coda_prompt" / "stage_0_egg_vs_stone.firm_grasp" / "train").exists()
     assert len(results["methods"]["act_joint"]["final"]) == 2
     assert {"lerobot", "torch", "mujoco"} <= set(results["versions"])
     assert "| coda_kvm | coda_kvm | sequential |" in (tmp_path / "out" / "cl_report.md").read_text()
