@@ -33,6 +33,7 @@ from ..envs.scenario import make_scenario
 from .cl_metrics import cl_metrics, joint_metrics
 
 CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"
+TIMING = "timing.json"  # a finished stage's training wall time, kept for runs that resume
 POLICIES = ("coda_kvm", "act")
 MODES = ("sequential", "joint")
 
@@ -240,6 +241,7 @@ class ContinualRun:
         if checkpoint.exists():
             return checkpoint
         shutil.rmtree(run_dir, ignore_errors=True)  # lerobot-train refuses an existing output dir
+        start = time.time()
         cmd = train_command(
             self.dataset_root,
             self.config.repo_id,
@@ -252,7 +254,13 @@ class ContinualRun:
             launcher=self.launcher,
         )
         run_logged(cmd, stage_dir / "train.log")
+        (stage_dir / TIMING).write_text(json.dumps({"train_wall_s": time.time() - start}))
         return checkpoint
+
+    @staticmethod
+    def _train_time(stage_dir: Path) -> float | None:
+        path = stage_dir / TIMING
+        return json.loads(path.read_text())["train_wall_s"] if path.exists() else None
 
     def _evaluate(
         self, checkpoint: Path, eval_dir: Path, tasks: Sequence[TaskSpec], extra: Sequence[str] = ()
@@ -296,14 +304,13 @@ class ContinualRun:
         for k, task in enumerate(tasks):
             stage_dir = self.out / method.name / f"stage_{k}_{task.name}"
             bar.set_description(f"{method.name}: stage {k + 1}/{len(tasks)} {task.name}")
-            start = time.time()
             if method.checkpoints_from is None:
                 previous = self._train(method, stage_dir, self._policy_args(method, previous, task.name), episodes[k])
+                stage_times.append(self._train_time(stage_dir))
             else:
                 previous = self.out / method.checkpoints_from / stage_dir.name / "train" / CHECKPOINT
                 if not previous.exists():
                     raise FileNotFoundError(f"{method.name}: {previous} missing: run {method.checkpoints_from} first")
-            stage_times.append(time.time() - start)
             bar.update()
             success = self._evaluate(previous, stage_dir / "eval", tasks[: k + 1], method.eval_args)
             matrix.append([success.get(t.name) for t in tasks])
@@ -313,7 +320,7 @@ class ContinualRun:
             "success_matrix": matrix,
             "final": matrix[-1],
             "metrics": cl_metrics(matrix),
-            "train_wall_s": stage_times,
+            "train_wall_s": stage_times,  # per stage (None: trained by an interrupted earlier invocation)
         }
 
     def _run_joint(
@@ -321,15 +328,14 @@ class ContinualRun:
     ) -> dict[str, Any]:
         stage_dir = self.out / method.name / "joint"
         bar.set_description(f"{method.name}: all {len(self.config.tasks)} tasks")
-        start = time.time()
         everything = sorted(e for task_eps in episodes for e in task_eps)
         checkpoint = self._train(method, stage_dir, self._policy_args(method, previous, "joint"), everything)
-        train_s = time.time() - start
         bar.update()
         success = self._evaluate(checkpoint, stage_dir / "eval", self.config.tasks, method.eval_args)
         bar.update()
         final = [success[t.name] for t in self.config.tasks]
-        return {"mode": "joint", "final": final, "metrics": joint_metrics(final), "train_wall_s": [train_s]}
+        train_s = [self._train_time(stage_dir)]
+        return {"mode": "joint", "final": final, "metrics": joint_metrics(final), "train_wall_s": train_s}
 
     def run(self) -> dict[str, Any]:
         start = time.time()
@@ -351,7 +357,13 @@ class ContinualRun:
                 began = time.time()
                 pretrained = self._pretrain(method, pretrain_episodes, bar)
                 result = runner(method, episodes, pretrained, bar)
-                results[method.name] = {"policy": method.policy, **result, "wall_time_s": time.time() - began}
+                pretrain_s = self._train_time(pretrained.parents[3]) if pretrained is not None else None
+                results[method.name] = {
+                    "policy": method.policy,
+                    **result,
+                    "pretrain_train_wall_s": pretrain_s,
+                    "wall_time_s": time.time() - began,
+                }
         kept = {}  # methods of the config finished by an earlier invocation (e.g. `--methods` one at a time)
         if self.results_path.exists():
             earlier = json.loads(self.results_path.read_text()).get("methods", {})
