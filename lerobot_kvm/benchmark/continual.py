@@ -20,7 +20,7 @@ import shlex
 import shutil
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -174,6 +174,10 @@ def task_episodes(dataset_root: Path, tasks: Sequence[TaskSpec]) -> list[list[in
     return out
 
 
+def _all_episodes(per_task: list[list[int]]) -> list[int]:
+    return sorted(e for episodes in per_task for e in episodes)
+
+
 def _versions() -> dict[str, str]:
     names = ("lerobot", "torch", "mujoco", "lerobot_policy_coda_kvm")
     found = {}
@@ -225,11 +229,11 @@ class ContinualRun:
         if not self.config.pretrain_tasks or method.checkpoints_from is not None:
             return None
         bar.set_description(f"{method.name}: pretraining")
-        stage = MethodSpec(**{**asdict(method), "steps_per_stage": method.pretrain_steps})
+        stage = replace(method, steps_per_stage=method.pretrain_steps)
         # Methods with the same policy and training settings share one pretraining run (e.g. ACT's two modes).
         key = json.dumps([method.policy, method.args, method.pretrain_steps, method.batch_size, self.launcher])
         stage_dir = self.out / "pretrain" / f"{method.policy}-{hashlib.sha1(key.encode()).hexdigest()[:8]}"
-        everything = sorted(e for task_eps in episodes for e in task_eps)
+        everything = _all_episodes(episodes)
         checkpoint = self._train(stage, stage_dir, self._policy_args(method, None, "pretrain"), everything)
         bar.update()
         return checkpoint
@@ -328,7 +332,7 @@ class ContinualRun:
     ) -> dict[str, Any]:
         stage_dir = self.out / method.name / "joint"
         bar.set_description(f"{method.name}: all {len(self.config.tasks)} tasks")
-        everything = sorted(e for task_eps in episodes for e in task_eps)
+        everything = _all_episodes(episodes)
         checkpoint = self._train(method, stage_dir, self._policy_args(method, previous, "joint"), everything)
         bar.update()
         success = self._evaluate(checkpoint, stage_dir / "eval", self.config.tasks, method.eval_args)
