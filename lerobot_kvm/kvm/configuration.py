@@ -33,6 +33,10 @@ class KvmConfig:
     gate_k: float = 3.0
     gate_window: int = 1000  # N: the last N successful routine interactions (control steps)
     gate_min_count: int = 32  # fewer safe interactions than this: no statistics yet, so always assess
+    # tau also covers the offline safe memory (a uniform sample of every skill's routine frames), not only the
+    # last N: in a learner grown task by task the last N are the latest task's, and every earlier task would
+    # look novel. False: eq. 1 over the last N alone.
+    gate_safe_memory: bool = True
 
     # ------------------------------------------------------------------ energy model (eq. 11, App. E: MLP 3x256)
     energy_hidden: list[int] = field(default_factory=lambda: [256, 256, 256])

@@ -3,9 +3,11 @@ the last N successful interactions.
 
 The window stores those interactions themselves (their raw contexts, a ring of N control steps from
 successful routine episodes: dataset frames during `lerobot-train`, successful attempts without intervention
-online). Whenever the encoder or the window has changed, the window is re-encoded: the mean residual of each
-modality there is the scale sigma_c^2 is measured in (see `context_encoder`), and mean/std of the resulting
-sigma^2 give tau. So tau always describes the safe experience as the encoder sees it now; the scales and
+online). Optionally a long-term safe memory joins it (`kvm.gate_safe_memory`): a uniform sample of every skill's
+routine frames, so that a learner grown task by task does not find its earlier tasks novel just because the
+last N interactions all come from the latest one. Whenever the encoder, the window or the memory has changed,
+these safe references are re-encoded: the mean residual of each modality there is the scale sigma_c^2 is
+measured in (see `context_encoder`), and mean/std of the resulting sigma^2 give tau. So tau always describes the safe experience as the encoder sees it now; the scales and
 mean/std/tau are persistent buffers. With fewer than `min_count` interactions there are no statistics yet and
 the gate stays open (assess always).
 """
@@ -14,7 +16,7 @@ import torch
 from torch import Tensor, nn
 
 from .context_encoder import ContextEncoder
-from .memory import SampleBuffer
+from .memory import ROUTINE, SampleBuffer
 
 
 def adaptive_threshold(sigma2: Tensor, k: float) -> tuple[Tensor, Tensor, Tensor]:
@@ -50,15 +52,23 @@ class SmartGate(nn.Module):
         self.window.add(c_raw)
         self.stale = True
 
+    def reference(self, memory: SampleBuffer | None = None) -> Tensor:
+        """The safe contexts tau describes: the window, plus the routine rows of a long-term safe memory."""
+        rows = [self.window.data[self.window.filled()]]
+        if memory is not None:
+            idx = memory.filled()
+            rows.append(memory.data[idx[(memory.flags[idx] & ROUTINE) > 0]])
+        return torch.cat(rows)
+
     @torch.no_grad()
-    def refresh(self, encoder: ContextEncoder) -> Tensor:
-        """Recompute the residual scales and (tau, mean, std) from the window with the current encoder."""
-        idx = self.window.filled()
-        if len(idx) < max(self.min_count, 1):
+    def refresh(self, encoder: ContextEncoder, memory: SampleBuffer | None = None) -> Tensor:
+        """Recompute the residual scales and (tau, mean, std) from the safe references with the current encoder."""
+        reference = self.reference(memory)
+        if len(reference) < max(self.min_count, 1):
             self.scale.fill_(1.0)
             stats = torch.tensor([float("-inf"), 0.0, 0.0])
         else:
-            _, parts = encoder(self.window.data[idx])
+            _, parts = encoder(reference)
             self.scale.copy_(parts.mean(0).clamp_min(1e-6))
             tau, mean, std = adaptive_threshold(encoder.sigma2(parts, self.scale), self.k)
             stats = torch.stack([tau, mean, std])
@@ -68,11 +78,11 @@ class SmartGate(nn.Module):
         self.stale = False
         return self.stats
 
-    def ensure_fresh(self, encoder: ContextEncoder) -> None:
+    def ensure_fresh(self, encoder: ContextEncoder, memory: SampleBuffer | None = None) -> None:
         if self.stale:
-            self.refresh(encoder)
+            self.refresh(encoder, memory)
 
-    def threshold(self, encoder: ContextEncoder) -> Tensor:
-        """tau as a 0-d tensor (refreshed first if the encoder or the window changed)."""
-        self.ensure_fresh(encoder)
+    def threshold(self, encoder: ContextEncoder, memory: SampleBuffer | None = None) -> Tensor:
+        """tau as a 0-d tensor (refreshed first if the encoder or the safe references changed)."""
+        self.ensure_fresh(encoder, memory)
         return self.stats[0]

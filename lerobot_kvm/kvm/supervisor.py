@@ -64,6 +64,11 @@ class KnowledgeValidityModule(nn.Module):
     def reset_runtime(self) -> None:
         self._sigma_history.clear()
 
+    @property
+    def gate_memory(self) -> SampleBuffer | None:
+        """The long-term safe memory the gate's tau also covers (None: the last N interactions alone)."""
+        return self.safe_offline if self.config.gate_safe_memory else None
+
     def set_gate_override(self, mode: str | None) -> None:
         if mode not in GATE_OVERRIDES:
             raise ValueError(f"gate override must be one of {GATE_OVERRIDES}, got {mode!r}")
@@ -95,7 +100,7 @@ class KnowledgeValidityModule(nn.Module):
 
         Rows are independent, so a non-finite context row only makes its own code and sigma_c^2 non-finite: one
         finiteness test of sigma_c^2 flags non-finite contexts and codes alike."""
-        self.gate.ensure_fresh(self.encoder)
+        self.gate.ensure_fresh(self.encoder, self.gate_memory)
         mu, sigma2 = self.encoder.code_and_sigma2(c_raw, self.gate.dim_weights)
         return mu, sigma2, torch.isfinite(sigma2)
 
@@ -130,7 +135,7 @@ class KnowledgeValidityModule(nn.Module):
         return torch.where(ok, v, torch.zeros_like(v))
 
     def threshold(self) -> Tensor:
-        return self.gate.threshold(self.encoder)
+        return self.gate.threshold(self.encoder, self.gate_memory)
 
     def assess(
         self,
@@ -149,7 +154,7 @@ class KnowledgeValidityModule(nn.Module):
         """
         cfg = self.config
         c_raw = self.raw_context(sensed, query)
-        self.gate.ensure_fresh(self.encoder)
+        self.gate.ensure_fresh(self.encoder, self.gate_memory)
         mu, sigma2 = self.encoder.code_and_sigma2(c_raw, self.gate.dim_weights)
         sigma2_gate = None
         if cfg.context_window > 1:
@@ -321,7 +326,7 @@ class KnowledgeValidityModule(nn.Module):
         fail_s = torch.cat([skills[fail], fs1, fs2, neg_s])
         loss, metrics = self.loss_terms(safe_c, safe_s, routine, fail_c, fail_s)
         with torch.no_grad():
-            tau = self.gate.refresh(self.encoder)[0]
+            tau = self.gate.refresh(self.encoder, self.gate_memory)[0]
             _, sigma2_now, _ = self.encode(c_raw[safe]) if bool(safe.any()) else (None, c_raw.new_zeros(0), None)
         out = {f"kvm_{k}": float(v.detach()) for k, v in metrics.items()}
         out["kvm_tau"] = float(tau)

@@ -47,6 +47,22 @@ def test_eq1_gate_uses_the_last_n_successful_interactions() -> None:
     assert gate.scale.tolist() == [2.5]
     assert gate.stats[1].item() == pytest.approx(1.0) and gate.stats[2].item() == pytest.approx(math.sqrt(1.25) / 2.5)
 
+def test_eq1_gate_also_covers_the_routine_rows_of_a_long_term_safe_memory() -> None:
+    from lerobot_kvm.kvm.memory import ROUTINE, SampleBuffer
+
+    gate = SmartGate(window=2, raw_dim=2, k=3.0, min_count=3, n_parts=1)
+    enc = _FirstColumnIsTheResidual()
+    memory = SampleBuffer(4, 2, "reservoir")
+    memory.add(torch.tensor([[1.0, 0.0], [2.0, 0.0]]), torch.zeros(2, dtype=torch.int64), ROUTINE)
+    memory.add(torch.tensor([[100.0, 0.0]]), torch.zeros(1, dtype=torch.int64), 0)  # not routine: left out
+    gate.push(torch.tensor([[3.0, 0.0], [4.0, 0.0]]))
+    assert gate.threshold(enc).item() == float("-inf")  # the window alone has fewer than min_count
+    gate.stale = True
+    # references 3, 4 (window) + 1, 2 (memory): the same statistics as four window rows 1..4
+    assert gate.threshold(enc, memory).item() == pytest.approx(1.0 + 3 * math.sqrt(1.25) / 2.5)
+    assert gate.scale.tolist() == [2.5]
+
+
 
 def test_sigma2_is_the_residual_of_each_modality_in_units_of_its_safe_scale() -> None:
     enc = ContextEncoder(sensed_dim=2, query_dim=4, hidden=[8], latent_dim=3, use_query=True, query_weight=0.5)
