@@ -1,15 +1,15 @@
 """Smart gate (eq. 1): full risk assessment only when sigma_c^2 exceeds tau = mean + k * std of sigma^2 over
 the last N successful interactions.
 
-The window stores those interactions themselves (their raw contexts, a ring of N control steps from
-successful routine episodes: dataset frames during `lerobot-train`, successful attempts without intervention
-online). Optionally a long-term safe memory joins it (`kvm.gate_safe_memory`): a uniform sample of every skill's
-routine frames, so that a learner grown task by task does not find its earlier tasks novel just because the
-last N interactions all come from the latest one. Whenever the encoder, the window or the memory has changed,
-these safe references are re-encoded: the mean residual of each modality there is the scale sigma_c^2 is
-measured in (see `context_encoder`), and mean/std of the resulting sigma^2 give tau. So tau always describes the safe experience as the encoder sees it now; the scales and
-mean/std/tau are persistent buffers. With fewer than `min_count` interactions there are no statistics yet and
-the gate stays open (assess always).
+The window stores those interactions themselves (their raw contexts, a ring of N control steps from successful
+routine episodes: dataset frames during `lerobot-train`, successful attempts without intervention online).
+Optionally a long-term safe memory joins it (`kvm.gate_safe_memory`): a uniform sample of every skill's routine
+frames, so that a learner grown task by task does not find its earlier tasks novel just because the last N
+interactions all come from the latest one. Whenever the encoder, the window or the memory has changed, these safe
+references are re-encoded: the mean residual of each modality there is the scale sigma_c^2 is measured in (see
+`context_encoder`), and mean/std of the resulting sigma^2 give tau. So tau always describes the safe experience as
+the encoder sees it now; the scales and mean/std/tau are persistent buffers. With fewer than `min_count`
+interactions there are no statistics yet and the gate stays open (assess always).
 """
 
 import torch
