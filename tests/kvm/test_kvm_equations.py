@@ -47,6 +47,7 @@ def test_eq1_gate_uses_the_last_n_successful_interactions() -> None:
     assert gate.scale.tolist() == [2.5]
     assert gate.stats[1].item() == pytest.approx(1.0) and gate.stats[2].item() == pytest.approx(math.sqrt(1.25) / 2.5)
 
+
 def test_eq1_gate_also_covers_the_routine_rows_of_a_long_term_safe_memory() -> None:
     from lerobot_kvm.kvm.memory import ROUTINE, SampleBuffer
 
@@ -61,7 +62,6 @@ def test_eq1_gate_also_covers_the_routine_rows_of_a_long_term_safe_memory() -> N
     # references 3, 4 (window) + 1, 2 (memory): the same statistics as four window rows 1..4
     assert gate.threshold(enc, memory).item() == pytest.approx(1.0 + 3 * math.sqrt(1.25) / 2.5)
     assert gate.scale.tolist() == [2.5]
-
 
 
 def test_sigma2_is_the_residual_of_each_modality_in_units_of_its_safe_scale() -> None:
