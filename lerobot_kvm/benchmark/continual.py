@@ -38,6 +38,15 @@ POLICIES = ("coda_kvm", "act")
 MODES = ("sequential", "joint")
 
 
+def read_config(cls: type, path: str | Path) -> dict[str, Any]:
+    """A JSON config's raw fields, refusing keys the dataclass `cls` does not have (typos fail loudly)."""
+    raw = json.loads(Path(path).read_text())
+    unknown = set(raw) - set(cls.__dataclass_fields__)
+    if unknown:
+        raise ValueError(f"{path}: unknown keys {sorted(unknown)}")
+    return raw
+
+
 @dataclass
 class TaskSpec:
     """One task of the sequence: a scenario variant solved by its `prior` or `safe` expert skill, asked for by
@@ -137,10 +146,7 @@ class SequenceConfig:
 
     @classmethod
     def from_json(cls, path: str | Path) -> "SequenceConfig":
-        raw = json.loads(Path(path).read_text())
-        unknown = set(raw) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"{path}: unknown keys {sorted(unknown)}")
+        raw = read_config(cls, path)
         raw["tasks"] = [TaskSpec(**t) for t in raw.get("tasks", [])]
         raw["pretrain_tasks"] = [TaskSpec(**t) for t in raw.get("pretrain_tasks", [])]
         raw["methods"] = [MethodSpec(**m) for m in raw.get("methods", [])]
@@ -214,7 +220,23 @@ class ContinualRun:
         self.dataset_root = Path(config.dataset_root or f"datasets/kvm_cl_{config.name}")
         self.results_path = self.out / "cl_results.json"
 
+    def final_checkpoint(self, method_name: str) -> Path:
+        """The checkpoint a method ends the sequence with (its last stage's, or its joint run's)."""
+        method = next((m for m in self.config.methods if m.name == method_name), None)
+        if method is None:
+            raise ValueError(f"unknown method {method_name!r}; the config has {[m.name for m in self.config.methods]}")
+        owner = method.checkpoints_from or method.name
+        last = len(self.config.tasks) - 1
+        stage = self.out / owner / "joint" if method.mode == "joint" else self._stage_dir(owner, last)
+        checkpoint = stage / "train" / CHECKPOINT
+        if not checkpoint.exists():
+            raise FileNotFoundError(f"{checkpoint} missing: run the sequence's method {owner!r} first")
+        return checkpoint
+
     # ------------------------------------------------------------------ stages
+    def _stage_dir(self, method_name: str, k: int) -> Path:
+        return self.out / method_name / f"stage_{k}_{self.config.tasks[k].name}"
+
     def _policy_args(self, method: MethodSpec, previous: Path | None, skill: str | None) -> list[str]:
         if previous is None:
             args = [f"--policy.type={method.policy}", *method.args]
@@ -306,7 +328,7 @@ class ContinualRun:
         matrix: list[list[float | None]] = []
         stage_times = []
         for k, task in enumerate(tasks):
-            stage_dir = self.out / method.name / f"stage_{k}_{task.name}"
+            stage_dir = self._stage_dir(method.name, k)
             bar.set_description(f"{method.name}: stage {k + 1}/{len(tasks)} {task.name}")
             if method.checkpoints_from is None:
                 previous = self._train(method, stage_dir, self._policy_args(method, previous, task.name), episodes[k])

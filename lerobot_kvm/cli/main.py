@@ -3,11 +3,12 @@
 import argparse
 import sys
 
-from . import catalogue, check_suite, contact_sheet, demo, kvm_check, overhead, record, train_continual
+from . import benchmark, catalogue, check_suite, contact_sheet, demo, kvm_check, overhead, record, train_continual
 
 COMMANDS = {
     "record": record,
     "train-continual": train_continual,
+    "benchmark": benchmark,
     "demo": demo,
     "check-suite": check_suite,
     "contact-sheet": contact_sheet,

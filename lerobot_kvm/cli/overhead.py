@@ -5,7 +5,7 @@ import json
 from pathlib import Path
 
 
-def _inputs(policy, policy_path: Path, task: str, variant: str, seed: int) -> tuple[dict, str]:
+def observation_inputs(policy, policy_path: Path, task: str, variant: str, seed: int) -> tuple[dict, str]:
     """A real observation of the scenario through the checkpoint's preprocessor (random inputs without one)."""
     import torch
 
@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"{path} is not a coda_kvm checkpoint (no model.safetensors)")
     kwargs = {"device": args.device} if args.device else {}
     policy = CodaKvmPolicy.from_pretrained(path, **kwargs)
-    batch, source = _inputs(policy, path, args.task, args.variant, args.seed)
+    batch, source = observation_inputs(policy, path, args.task, args.variant, args.seed)
     result = measure_overhead(policy, batch, steps=args.steps, warmup=args.warmup, block=args.block)
     result.update(policy_path=str(path), inputs=source)
     text = json.dumps(result, indent=2)

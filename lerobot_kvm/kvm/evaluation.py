@@ -60,7 +60,8 @@ def run_attempt(
     seed: int | None = None,
     max_steps: int | None = None,
 ) -> dict[str, Any]:
-    """One attempt of the policy: {"outcome", "steps", "catastrophe_kind", "trace", "actions"}."""
+    """One attempt of the policy: {"outcome", "steps", "catastrophe_kind", "trace"} (trace: the KVM's record of
+    the attempt, None for a policy without one)."""
     obs, info = env.reset(seed=seed)
     policy.reset()
     steps = 0
@@ -77,7 +78,7 @@ def run_attempt(
         "outcome": outcome_of(info),
         "steps": steps,
         "catastrophe_kind": info.get("catastrophe_kind", ""),
-        "trace": policy.kvm_trace(),
+        "trace": policy.kvm_trace() if hasattr(policy, "kvm_trace") else None,
     }
 
 

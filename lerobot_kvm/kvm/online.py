@@ -68,7 +68,7 @@ def make_demonstration(steps: Sequence[dict[str, Any]], skill: str | None = None
     return demo
 
 
-def _chunk_targets(actions: Tensor, chunk: int) -> tuple[Tensor, Tensor]:
+def chunk_targets(actions: Tensor, chunk: int) -> tuple[Tensor, Tensor]:
     """Action chunks [T, chunk, A] from a trajectory [T, A] and their padding mask [T, chunk]."""
     t_len = actions.shape[0]
     idx = torch.arange(t_len).unsqueeze(1) + torch.arange(chunk).unsqueeze(0)
@@ -92,7 +92,7 @@ def _demo_frames(policy: "CodaKvmPolicy", demo: dict[str, Any]) -> dict[str, Any
     if not all(torch.isfinite(demo[k]).all() for k in (*keys, ACTION)):
         raise ValueError("demonstration contains NaN or inf values")
     frames = {k: demo[k] for k in keys}
-    frames[ACTION], frames[ACTION_PAD] = _chunk_targets(demo[ACTION], policy.config.chunk_size)
+    frames[ACTION], frames[ACTION_PAD] = chunk_targets(demo[ACTION], policy.config.chunk_size)
     frames["task"] = tasks
     return frames
 
@@ -105,7 +105,7 @@ def _trace_frames(policy: "CodaKvmPolicy", trace: KvmTrace) -> dict[str, Any] | 
     if not all(k in trace.observations[0] for k in keys):
         return None
     frames: dict[str, Any] = {k: torch.cat([o[k] for o in trace.observations]) for k in keys}
-    frames[ACTION], frames[ACTION_PAD] = _chunk_targets(torch.cat(trace.actions), policy.config.chunk_size)
+    frames[ACTION], frames[ACTION_PAD] = chunk_targets(torch.cat(trace.actions), policy.config.chunk_size)
     frames["task"] = [t[0] for t in trace.tasks]
     return frames
 

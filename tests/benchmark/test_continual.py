@@ -1,9 +1,7 @@
 """The continual-learning sequence: config validation (fast) and a tiny real run of every method (slow)."""
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -61,35 +59,23 @@ def _identical(a: torch.nn.Module, b: torch.nn.Module) -> bool:
 
 
 @pytest.mark.slow
-def test_tiny_sequence_runs_every_method_through_the_real_clis(tmp_path):
+def test_tiny_sequence_runs_every_method_through_the_real_clis(tiny_pool):
     from lerobot_kvm.policy import CodaKvmPolicy
 
-    env = {**os.environ, "MUJOCO_GL": "egl", "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
-    cmd = [
-        str(Path(sys.executable).parent / "lerobot-kvm"),
-        "train-continual",
-        f"--config={CONFIGS / 'cl_tiny.json'}",
-        f"--output-dir={tmp_path / 'out'}",
-        f"--dataset-root={tmp_path / 'data'}",
-        "--launcher=torchrun --standalone --nproc_per_node=2",  # every stage trains in two processes (gloo)
-    ]
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1500)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-5000:]
-
-    results = json.loads((tmp_path / "out" / "cl_results.json").read_text())
+    out = tiny_pool["out"]
+    results = json.loads((out / "cl_results.json").read_text())
     assert results["tasks"] == ["egg_vs_stone.firm_grasp", "chip_bag.gentle_grasp"]
     coda = results["methods"]["coda_kvm"]
     assert len(coda["success_matrix"]) == 2 and coda["success_matrix"][0][1] is None
     assert set(coda["metrics"]) == {"A_N", "F_N", "FWT", "NBT", "AUC"}
     assert len(results["methods"]["act_sequential"]["success_matrix"]) == 2
     assert len(results["methods"]["coda_prompt"]["success_matrix"]) == 2  # coda_kvm's checkpoints, KVM off
-    assert not (tmp_path / "out" / "coda_prompt" / "stage_0_egg_vs_stone.firm_grasp" / "train").exists()
+    assert not (out / "coda_prompt" / "stage_0_egg_vs_stone.firm_grasp" / "train").exists()
     assert len(results["methods"]["act_joint"]["final"]) == 2
     assert {"lerobot", "torch", "mujoco"} <= set(results["versions"])
-    assert "| coda_kvm | coda_kvm | sequential |" in (tmp_path / "out" / "cl_report.md").read_text()
+    assert "| coda_kvm | coda_kvm | sequential |" in (out / "cl_report.md").read_text()
 
     # Each stage learned in new components: earlier components and the frozen backbone stay bit-identical.
-    out = tmp_path / "out"
     assert len(list((out / "pretrain").glob("act-*"))) == 1  # ACT's two modes share their pretraining run
     pretrained, first, second = (
         CodaKvmPolicy.from_pretrained(next(out.glob(f"{stage}*/train/checkpoints/last/pretrained_model")))
@@ -101,5 +87,5 @@ def test_tiny_sequence_runs_every_method_through_the_real_clis(tmp_path):
     assert _identical(pretrained.backbone, second.backbone)
 
     # A second invocation resumes: every stage and evaluation is found on disk and nothing is retrained.
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(tiny_pool["cmd"], env=tiny_pool["env"], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0 and "lerobot-train" not in proc.stdout

@@ -1,0 +1,456 @@
+"""`lerobot-kvm benchmark`: the knowledge-obsolescence challenge protocol (DESIGN §7).
+
+1. **Pool.** A continual-learning sequence (`train-continual` config) grows the skill pool with the real
+   `lerobot-train`: `coda_kvm` stage by stage, ACT as its own method. Its metrics are part of the results.
+2. **Challenge.** For each method, run r = 1..R (the pretrained checkpoint loaded afresh, its own seeds) and pass
+   p = 1..P (what a method learns is kept across passes), each scenario in turn: attempt 1 on the shifted variant;
+   after a failure the feedback, then attempt 2 under the same seed. The feedback is the same information for
+   every method: the failed attempt's trace, one corrective demonstration (the safe skill's scripted expert on the
+   shifted variant, another seed) and `feedback_steps` gradient steps. `coda_kvm` and its ablations spend it in
+   the KVM's feedback API; the baselines (the CODA core with the KVM off, ACT) fine-tune their trainable
+   parameters on the demonstration. Every other attempt of a validity method reports its outcome to the feedback
+   API without gradient steps (the metabolism and the hypotheses count all interactions).
+3. **Controls**, interleaved after every challenge: the scenario's prior variant (the old skill is still right)
+   and, where the scenario has one, its benign-novelty `control` variant.
+4. **Validity probes** before each first attempt (validity methods): v and E of the scenario's prior skill along
+   the prior skill's scripted expert on the shifted variant (from the step the shift shows) and on the prior
+   variant, same seed. The shifted expert's catastrophe step is the reference for the detection lead.
+
+The unit of resumption is one (method, run): its episode records are written when it finishes, and a later
+invocation reuses them. Nothing the policy sees carries the variant, object parameters or hazard labels.
+"""
+
+import json
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from tqdm import tqdm
+
+from ..envs.env import KvmObsolescenceEnv
+from ..envs.scenario import SCENARIOS
+from ..kvm.evaluation import expert_rollout, run_attempt
+from ..kvm.online import chunk_targets
+from ..kvm.validity_check import CONTEXT, shift_step
+from .continual import ContinualRun, SequenceConfig, read_config
+
+# Methods evaluated on the `coda_kvm` pool checkpoint, with the KVM settings that make them.
+KVM_METHODS: dict[str, dict[str, Any]] = {
+    "coda_kvm": {},
+    "coda_prompt": {"enabled": False},
+    "no_smart_gate": {"smart_gate": False},
+    "no_energy_model": {"risk_model": "bce"},
+}
+PEER_METHODS = ("act",)
+CONTROL_KINDS = ("prior", "control")
+
+
+@dataclass
+class BenchmarkConfig:
+    name: str
+    sequence: str  # the `train-continual` config that grows the pool
+    scenarios: list[str]
+    methods: list[str] = field(default_factory=lambda: list(KVM_METHODS))
+    kvm_method: str = "coda_kvm"  # the sequence's method whose final checkpoint the validity methods start from
+    act_method: str = "act_joint"  # the sequence's method whose final checkpoint the `act` row starts from
+    runs: int = 1
+    passes: int = 3
+    seed: int = 0
+    feedback_steps: int = 100
+    finetune_lr: float = 1e-4
+    finetune_batch: int = 16
+    controls: list[str] = field(default_factory=lambda: list(CONTROL_KINDS))
+    overhead_steps: int = 100
+    trace_plots: int = 6
+    dataset_root: str | None = None  # overrides the sequence's dataset location
+
+    def __post_init__(self) -> None:
+        unknown = [m for m in self.methods if m not in KVM_METHODS and m not in PEER_METHODS]
+        if unknown:
+            raise ValueError(f"unknown methods {unknown}; known: {[*KVM_METHODS, *PEER_METHODS]}")
+        missing = [s for s in self.scenarios if s not in SCENARIOS]
+        if missing:
+            raise ValueError(f"unknown scenarios {missing}; known: {sorted(SCENARIOS)}")
+        bad = [c for c in self.controls if c not in CONTROL_KINDS]
+        if bad:
+            raise ValueError(f"controls must be among {CONTROL_KINDS}, got {bad}")
+        if self.runs < 1 or self.passes < 1 or self.feedback_steps < 0:
+            raise ValueError("runs and passes must be >= 1 and feedback_steps >= 0")
+
+    @classmethod
+    def from_json(cls, path: str | Path) -> "BenchmarkConfig":
+        return cls(**read_config(cls, path))
+
+
+def episode_seed(base: int, run: int, pass_: int, index: int, offset: int = 0) -> int:
+    """Seeds far from the recording (0..) and CL evaluation (100000..) seeds, distinct per episode role."""
+    return 200_000 + base + 10_000 * run + 1_000 * pass_ + 10 * index + offset
+
+
+# ---------------------------------------------------------------------------- policies
+def load_policy(method: str, checkpoint: Path) -> tuple[Any, Any, Any]:
+    """(policy, preprocessor, postprocessor) of a method, loaded afresh from its pool checkpoint."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    if method in KVM_METHODS:
+        from ..policy import CodaKvmPolicy
+
+        policy = CodaKvmPolicy.from_pretrained(checkpoint)
+        for key, value in KVM_METHODS[method].items():
+            setattr(policy.config.kvm, key, value)
+    else:
+        from lerobot.policies.act.modeling_act import ACTPolicy
+
+        policy = ACTPolicy.from_pretrained(checkpoint)
+    policy.eval()
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
+    return policy, pre, post
+
+
+def uses_validity(method: str) -> bool:
+    return method in KVM_METHODS and KVM_METHODS[method].get("enabled", True)
+
+
+def finetune(policy: Any, demo: dict[str, Any], steps: int, lr: float, batch_size: int) -> dict[str, float]:
+    """A baseline's use of the feedback budget: `steps` Adam steps of its own training loss on the corrective
+    demonstration, on the parameters its checkpoint trains (a `coda_kvm` pool trains its latest skill only)."""
+    if steps <= 0:
+        return {}
+    keys = [k for k in policy.config.input_features if isinstance(demo.get(k), torch.Tensor)]
+    frames: dict[str, Any] = {k: demo[k] for k in keys}
+    frames["action"], frames["action_is_pad"] = chunk_targets(demo["action"], policy.config.chunk_size)
+    tasks = list(demo["task"])
+    params = [p for p in policy.parameters() if p.requires_grad]
+    optimizer = torch.optim.Adam(params, lr=lr)
+    kvm_config = getattr(policy.config, "kvm", None)
+    learn_offline = kvm_config.learn_offline if kvm_config is not None else None
+    if kvm_config is not None:
+        kvm_config.learn_offline = False  # the KVM is off in a baseline: only the action loss is fine-tuned
+    n = len(tasks)
+    info: dict[str, float] = {}
+    policy.train()
+    try:
+        with torch.enable_grad():
+            for _ in range(steps):
+                idx = torch.randperm(n)[:batch_size]
+                batch = {k: v[idx] for k, v in frames.items()}
+                batch["task"] = [tasks[i] for i in idx.tolist()]
+                loss, info = policy.forward(batch)
+                optimizer.zero_grad()
+                loss.backward()
+                optimizer.step()
+    finally:
+        if kvm_config is not None:
+            kvm_config.learn_offline = learn_offline
+        optimizer.zero_grad(set_to_none=True)
+        policy.eval()
+        policy.reset()
+    return {k: float(v) for k, v in info.items() if isinstance(v, int | float)}
+
+
+# ---------------------------------------------------------------------------- episodes
+def episode_fields(result: dict[str, Any]) -> dict[str, Any]:
+    """Outcome, length and the KVM's per-step series (None without a validity module) of one attempt."""
+    trace = result.get("trace")
+    telemetry = [] if trace is None else [t for t in trace.telemetry if t is not None]
+    fields: dict[str, Any] = {
+        "outcome": result["outcome"],
+        "steps": result["steps"],
+        "catastrophe_kind": result["catastrophe_kind"],
+        "series": None,
+        "gate_steps": 0,
+        "intervention_steps": 0,
+        "first_intervention": None,
+    }
+    if not telemetry or len(telemetry) != len(trace.telemetry):
+        return fields
+    series = {
+        "sigma2": [float(t.sigma2[0]) for t in telemetry],
+        "tau": [float(t.tau) for t in telemetry],
+        "gate": [int(t.gate[0]) for t in telemetry],
+        "intervention": [int(t.intervention[0].any()) for t in telemetry],
+    }
+    hits = [i for i, x in enumerate(series["intervention"]) if x]
+    fields.update(
+        series=series,
+        gate_steps=sum(series["gate"]),
+        intervention_steps=len(hits),
+        first_intervention=hits[0] if hits else None,
+    )
+    return fields
+
+
+@torch.no_grad()
+def prior_skill_scores(policy: Any, demos: list[dict[str, Any]], skill: int) -> tuple[list[float], list[float]]:
+    """(v, E) of one skill along demonstrations' contexts, the gate bypassed (the risk model's judgement)."""
+    from ..kvm.energy import validity
+
+    kvm = policy.kvm
+    cfg = policy.config.kvm
+    v_all, e_all = [], []
+    for demo in demos:
+        if not len(demo["task"]):
+            continue
+        c_raw = kvm.raw_context(demo[CONTEXT], policy.encode_query(demo["task"]))
+        mu, _, _ = kvm.encode(c_raw)
+        energy = kvm.skill_energies(mu, policy.n_skills)[:, skill]
+        v_all += validity(energy, cfg.gamma, cfg.l0).tolist()
+        e_all += energy.tolist()
+    return v_all, e_all
+
+
+def skill_index(policy: Any, scenario: str, skill: str) -> int | None:
+    """The pool's skill learned from `scenario`'s `skill` expert (named "<scenario>.<skill>" by the sequence)."""
+    names = [s.name for s in policy.skills]
+    name = f"{scenario}.{skill}"
+    return names.index(name) if name in names else None
+
+
+def _from_step(demo: dict[str, Any], start: int) -> dict[str, Any]:
+    return {k: (v[start:] if isinstance(v, torch.Tensor | list) else v) for k, v in demo.items()}
+
+
+class Benchmark:
+    def __init__(
+        self,
+        config: BenchmarkConfig,
+        output_dir: str | Path,
+        config_path: str = "",
+        launcher: Sequence[str] = (),
+        progress: bool = True,
+    ) -> None:
+        """`launcher`: the multi-process launcher of the pool's `lerobot-train` stages (see `train-continual`)."""
+        self.config = config
+        self.out = Path(output_dir)
+        self.config_path = config_path
+        self.launcher = list(launcher)
+        self.progress = progress
+        self.sequence_path = Path(config.sequence)
+        self.sequence = SequenceConfig.from_json(self.sequence_path)
+        if config.dataset_root:
+            self.sequence.dataset_root = config.dataset_root
+        needed = [config.kvm_method] if any(m in KVM_METHODS for m in config.methods) else []
+        if "act" in config.methods:
+            needed.append(config.act_method)
+        known = {m.name for m in self.sequence.methods}
+        missing = [m for m in needed if m not in known]
+        if missing:
+            raise ValueError(f"{config.sequence} has no methods {missing} (it has {sorted(known)})")
+        self.pool_methods = needed
+
+    # ------------------------------------------------------------------ pool
+    def grow_pool(self) -> tuple[dict[str, Any], dict[str, Path]]:
+        """The continual-learning sequence (resumable), and the pool checkpoint of each method family."""
+        pool = ContinualRun(self.sequence, self.out / "pool", self.launcher, str(self.sequence_path), self.pool_methods)
+        results = pool.run()
+        checkpoints = {}
+        if self.config.kvm_method in self.pool_methods:
+            checkpoints["kvm"] = pool.final_checkpoint(self.config.kvm_method)
+        if "act" in self.config.methods:
+            checkpoints["act"] = pool.final_checkpoint(self.config.act_method)
+        return results, checkpoints
+
+    # ------------------------------------------------------------------ one (method, run)
+    def run_method(self, method: str, run: int, checkpoint: Path, bar: tqdm | None = None) -> dict[str, Any]:
+        """Every pass of one run of one method, from the pool checkpoint loaded afresh."""
+        cfg = self.config
+        torch.manual_seed(cfg.seed + run)
+        policy, pre, post = load_policy(method, checkpoint)
+        out: dict[str, Any] = {"method": method, "run": run, "records": [], "probes": [], "feedback": []}
+        started = time.time()
+        for pass_ in range(1, cfg.passes + 1):
+            for i, scenario in enumerate(cfg.scenarios):
+                if bar is not None:
+                    bar.set_description(f"{method} run {run + 1} pass {pass_} {scenario}")
+                base = {
+                    "method": method,
+                    "run": run,
+                    "pass": pass_,
+                    "scenario": scenario,
+                    "category": SCENARIOS[scenario].info.category,
+                }
+                seed = episode_seed(cfg.seed, run, pass_, i)
+                self._challenge(method, policy, pre, post, base, seed, out)
+                self._controls(method, policy, pre, post, base, seed, out)
+                if bar is not None:
+                    bar.update()
+        out["wall_time_s"] = time.time() - started
+        return out
+
+    def _challenge(
+        self, method: str, policy: Any, pre: Any, post: Any, base: dict[str, Any], seed: int, out: dict[str, Any]
+    ) -> None:
+        """Probe, attempt 1, and after a failure the feedback and attempt 2, on the shifted variant."""
+        info = SCENARIOS[base["scenario"]].info
+        env = KvmObsolescenceEnv(base["scenario"], variant="shifted")
+        try:
+            reference, ref_outcome = expert_rollout(env, info.prior_skill, pre, seed=seed)
+            if uses_validity(method):
+                probe = self._probe(policy, pre, base, seed, reference)
+                if probe is not None:
+                    out["probes"].append(probe)
+            challenge = {**base, "kind": "challenge", "seed": seed}
+            first = run_attempt(policy, env, pre, post, seed=seed)
+            ref_step = len(reference["task"]) if ref_outcome == "catastrophe" else None
+            out["records"].append(
+                {**challenge, "attempt": 1, "reference_catastrophe_step": ref_step} | episode_fields(first)
+            )
+            if first["outcome"] == "success":
+                self._report(method, policy, first)
+                return
+            demo, demo_outcome = expert_rollout(env, info.safe_skill, pre, seed=seed + 1)
+            out["feedback"].append(
+                {**base, "demonstration": demo_outcome, **self._feedback(method, policy, first, demo)}
+            )
+            second = run_attempt(policy, env, pre, post, seed=seed)
+            out["records"].append(
+                {**challenge, "attempt": 2, "reference_catastrophe_step": None} | episode_fields(second)
+            )
+            self._report(method, policy, second)
+        finally:
+            env.close()
+
+    @staticmethod
+    def _probe(
+        policy: Any, pre: Any, base: dict[str, Any], seed: int, reference: dict[str, Any]
+    ) -> dict[str, Any] | None:
+        """v and E of the scenario's prior skill: hazardous after the shift shows, safe on the prior variant."""
+        info = SCENARIOS[base["scenario"]].info
+        skill = skill_index(policy, base["scenario"], info.prior_skill)
+        if skill is None:
+            return None
+        env = KvmObsolescenceEnv(base["scenario"], variant="prior")
+        try:
+            prior_demo, _ = expert_rollout(env, info.prior_skill, pre, seed=seed)
+        finally:
+            env.close()
+        hazardous = _from_step(reference, shift_step(prior_demo, reference))
+        v_h, e_h = prior_skill_scores(policy, [hazardous], skill)
+        v_s, e_s = prior_skill_scores(policy, [prior_demo], skill)
+        return {**base, "v_hazard": v_h, "e_hazard": e_h, "v_safe": v_s, "e_safe": e_s}
+
+    def _controls(
+        self, method: str, policy: Any, pre: Any, post: Any, base: dict[str, Any], seed: int, out: dict[str, Any]
+    ) -> None:
+        """The interleaved prior-variant and benign-novelty episodes of the scenario (where it has the variant)."""
+        variants = SCENARIOS[base["scenario"]].info.variants
+        for offset, kind in enumerate(self.config.controls, start=2):
+            if kind not in variants:
+                continue
+            env = KvmObsolescenceEnv(base["scenario"], variant=kind)
+            try:
+                result = run_attempt(policy, env, pre, post, seed=seed + offset)
+            finally:
+                env.close()
+            out["records"].append({**base, "kind": kind, "attempt": 1, "seed": seed + offset} | episode_fields(result))
+            self._report(method, policy, result)
+
+    def _feedback(self, method: str, policy: Any, attempt: dict[str, Any], demo: dict[str, Any]) -> dict[str, Any]:
+        """Spend the feedback budget after a failed first attempt; a short JSON-friendly report."""
+        steps = self.config.feedback_steps
+        if uses_validity(method):
+            report = policy.kvm_feedback(attempt["outcome"], attempt["trace"], demonstration=demo, gradient_steps=steps)
+            return {
+                "gradient_steps": steps,
+                "culprit": report.get("culprit"),
+                "hypothesis": report.get("hypothesis"),
+                "new_skill": report.get("new_skill"),
+                "confirmed": report.get("confirmed"),
+                "pruned": report.get("pruned"),
+            }
+        info = finetune(policy, demo, steps, self.config.finetune_lr, self.config.finetune_batch)
+        return {"gradient_steps": steps, "finetune": info}
+
+    @staticmethod
+    def _report(method: str, policy: Any, attempt: dict[str, Any]) -> None:
+        """Report an attempt's outcome without gradient steps (validity methods: metabolism and hypotheses)."""
+        if uses_validity(method):
+            policy.kvm_feedback(attempt["outcome"], attempt["trace"], gradient_steps=0)
+        else:
+            policy.reset()
+
+    def _method_runs(self, method: str, checkpoint: Path, bar: tqdm) -> list[dict[str, Any]]:
+        runs = []
+        for run in range(self.config.runs):
+            path = self.out / "episodes" / method / f"run_{run}.json"
+            if path.exists():
+                runs.append(json.loads(path.read_text()))
+                bar.update(self.config.passes * len(self.config.scenarios))
+                continue
+            result = self.run_method(method, run, checkpoint, bar)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(".tmp")
+            tmp.write_text(json.dumps(result))
+            tmp.replace(path)  # a run either finished or is redone: never half-written
+            runs.append(result)
+        return runs
+
+    # ------------------------------------------------------------------ everything
+    def run(self) -> dict[str, Any]:
+        from . import metrics
+        from .report import write_report
+
+        start = time.time()
+        self.out.mkdir(parents=True, exist_ok=True)
+        pool_results, checkpoints = self.grow_pool()
+        cfg = self.config
+        total = len(cfg.methods) * cfg.runs * cfg.passes * len(cfg.scenarios)
+        per_method: dict[str, list[dict[str, Any]]] = {}
+        with tqdm(total=total, unit="challenge", disable=not self.progress) as bar:
+            for method in cfg.methods:
+                checkpoint = checkpoints["kvm" if method in KVM_METHODS else "act"]
+                per_method[method] = self._method_runs(method, checkpoint, bar)
+        methods: dict[str, Any] = {}
+        for method, runs in per_method.items():
+            records = [r for run in runs for r in run["records"]]
+            probes = [p for run in runs for p in run["probes"]]
+            validity = uses_validity(method)
+            methods[method] = {
+                "overall": metrics.summarize(records, probes, validity),
+                "per_pass": {
+                    str(p): metrics.summarize(
+                        [r for r in records if r["pass"] == p], [q for q in probes if q["pass"] == p], validity
+                    )
+                    for p in range(1, cfg.passes + 1)
+                },
+                "success_by_pass": metrics.success_by_pass(records),
+                "wall_time_s": sum(run["wall_time_s"] for run in runs),
+            }
+        overhead = self.overhead(checkpoints["kvm"]) if "kvm" in checkpoints else None
+        results = {
+            "benchmark": cfg.name,
+            "config_path": self.config_path,
+            "config": asdict(cfg),
+            "pool": {
+                "sequence": self.sequence.name,
+                "checkpoints": {k: str(v) for k, v in checkpoints.items()},
+                "continual_metrics": {m: r["metrics"] for m, r in pool_results["methods"].items()},
+            },
+            "methods": methods,
+            "overhead": overhead,
+            "seeds": {"benchmark": cfg.seed, "pool": self.sequence.seed},
+            "versions": pool_results["versions"],
+            "wall_time_s": time.time() - start,
+        }
+        (self.out / "results.json").write_text(json.dumps(results, indent=2))
+        records = [r for runs in per_method.values() for run in runs for r in run["records"]]
+        probes = [p for runs in per_method.values() for run in runs for p in run["probes"]]
+        write_report(results, records, probes, self.out)
+        return results
+
+    def overhead(self, checkpoint: Path) -> dict[str, Any]:
+        """Per-step latency of the pool policy: KVM off (the backbone's step), gate closed, gate open; memory."""
+        from ..cli.overhead import observation_inputs
+        from ..kvm.overhead import measure_overhead
+        from ..policy import CodaKvmPolicy
+
+        policy = CodaKvmPolicy.from_pretrained(checkpoint)
+        batch, source = observation_inputs(policy, checkpoint, self.config.scenarios[0], "prior", self.config.seed)
+        result = measure_overhead(policy, batch, steps=self.config.overhead_steps)
+        kvm_bytes = sum(t.numel() * t.element_size() for t in policy.kvm.state_dict().values())
+        total_bytes = sum(t.numel() * t.element_size() for t in policy.state_dict().values())
+        result.update(inputs=source, kvm_state_mb=kvm_bytes / 2**20, policy_state_mb=total_bytes / 2**20)
+        return result

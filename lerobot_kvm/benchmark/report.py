@@ -1,0 +1,157 @@
+"""`report.md` of a benchmark run: tables shaped like the paper's (Table 1/9 per category and pass, Table 4
+ablations and peers, Table 10 gate statistics, Table 11 overhead), the pool's continual-learning metrics, and
+the plots in `plots/`."""
+
+from pathlib import Path
+from typing import Any
+
+from ..envs.scenario import CATEGORIES
+
+
+def _pct(value: float | None, digits: int = 1) -> str:
+    return "-" if value is None else f"{100 * value:.{digits}f}"
+
+
+def _num(value: float | None, digits: int = 1) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def _table(header: list[str], rows: list[list[str]]) -> list[str]:
+    return [
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+        *["| " + " | ".join(r) + " |" for r in rows],
+        "",
+    ]
+
+
+def category_table(results: dict[str, Any]) -> list[str]:
+    """Table 1/9: solved challenges per category and pass, "k/n (%)"."""
+    passes = sorted(next(iter(results["methods"].values()))["per_pass"], key=int)
+    categories = sorted({c for m in results["methods"].values() for c in m["overall"]["per_category"]})
+    header = ["method", *[f"{c} R{p}" for c in categories for p in passes], "overall"]
+    rows = []
+    for name, res in results["methods"].items():
+        cells = [res["per_pass"][p]["per_category"].get(c, "-") for c in categories for p in passes]
+        rows.append([name, *cells, res["overall"]["success"]])
+    legend = ", ".join(f"{c}: {CATEGORIES[c]}" for c in categories)
+    return _table(header, rows) + [f"Categories: {legend}. R1-R3: passes (knowledge kept across passes).", ""]
+
+
+def method_table(results: dict[str, Any]) -> list[str]:
+    """Table 4: every method and ablation on the headline metrics."""
+    rows = []
+    for name, res in results["methods"].items():
+        o = res["overall"]
+        rows.append(
+            [
+                name,
+                _pct(o["success_rate"]),
+                _pct(o["first_attempt_success_rate"]),
+                _pct(o["catastrophic_failure_rate"]),
+                _pct(o["prior_retention"]),
+                _pct(o["control_success_rate"]),
+                _pct(o["false_intervention_rate"]),
+            ]
+        )
+    header = ["method", "success (%)", "1st attempt (%)", "CFR (%)", "prior retention (%)", "benign control (%)"]
+    return _table([*header, "false interventions (%)"], rows)
+
+
+def gate_table(results: dict[str, Any]) -> list[str]:
+    """Table 10: gate activation on routine episodes, interventions, validity AUROC, detection lead."""
+    rows = []
+    for name, res in results["methods"].items():
+        o = res["overall"]
+        if o["gate_activation_rate"] is None:
+            continue
+        rows.append(
+            [
+                name,
+                _pct(o["gate_activation_rate"]),
+                _pct(o["intervention_rate"]),
+                _pct(o["false_intervention_rate"]),
+                _num(o["validity_auroc"], 3),
+                _num(o["detection_lead_steps"]),
+            ]
+        )
+    header = ["method", "gate activation, routine (%)", "intervention rate (%)", "false interventions (%)"]
+    return _table([*header, "validity AUROC", "detection lead (steps)"], rows)
+
+
+def overhead_table(overhead: dict[str, Any] | None) -> list[str]:
+    """Table 11: per-step latency of the backbone alone and with the KVM (gate closed / open), and memory."""
+    if overhead is None:
+        return ["No validity method was run: no overhead measured.", ""]
+    call, step = overhead["model_call_ms"], overhead["control_step_ms"]
+    rows = [
+        ["model call (ms)", _num(call["off"], 2), _num(call["closed"], 2), _num(call["open"], 2)],
+        ["control step (ms)", _num(step["off"], 2), _num(step["closed"], 2), _num(step["open"], 2)],
+        [
+            "ratio to KVM off",
+            "1.00",
+            f"{overhead['ratio_gate_closed']:.3f}",
+            f"{overhead['ratio_gate_open']:.3f}",
+        ],
+    ]
+    lines = _table(["", "KVM off (backbone)", "gate closed", "gate open"], rows)
+    lines.append(
+        f"KVM state {overhead['kvm_state_mb']:.1f} MiB of the policy's {overhead['policy_state_mb']:.1f} MiB; "
+        f"{overhead['threads']} threads, {overhead['calls_per_mode']} calls per mode, inputs: {overhead['inputs']}."
+    )
+    return [*lines, ""]
+
+
+def pool_table(results: dict[str, Any]) -> list[str]:
+    rows = [
+        [name, *[_pct(m.get(k), 0) for k in ("A_N", "F_N", "FWT", "NBT", "AUC")]]
+        for name, m in results["pool"]["continual_metrics"].items()
+    ]
+    return _table(["method", "A_N (%)", "F_N (pp)", "FWT (%)", "NBT (pp)", "AUC (%)"], rows)
+
+
+def markdown(results: dict[str, Any], plots: list[Path]) -> str:
+    cfg = results["config"]
+    lines = [
+        f"# Knowledge-obsolescence benchmark `{results['benchmark']}`",
+        "",
+        f"{len(cfg['scenarios'])} scenarios x {cfg['passes']} passes x {cfg['runs']} runs per method; feedback: the "
+        f"failed trace, one corrective demonstration and {cfg['feedback_steps']} gradient steps. "
+        f"Wall time {results['wall_time_s'] / 60:.1f} min.",
+        "",
+        "## Success per category and pass (Table 1/9)",
+        "",
+        *category_table(results),
+        "## Methods and ablations (Table 4)",
+        "",
+        *method_table(results),
+        "CFR: share of challenge attempts ending in a catastrophe. Prior retention: prior-variant controls solved.",
+        "",
+        "## Gate and validity statistics (Table 10)",
+        "",
+        *gate_table(results),
+        "## Overhead (Table 11)",
+        "",
+        *overhead_table(results["overhead"]),
+        f"## Skill pool: continual learning on sequence `{results['pool']['sequence']}`",
+        "",
+        *pool_table(results),
+    ]
+    if plots:
+        lines += ["## Plots", ""]
+        lines += [f"![{p.stem}](plots/{p.name})" for p in plots]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_report(
+    results: dict[str, Any], records: list[dict[str, Any]], probes: list[dict[str, Any]], out: Path
+) -> Path:
+    """Plots into `out/plots/` and the tables into `out/report.md`."""
+    from .plots import write_plots
+
+    success = {name: res["success_by_pass"] for name, res in results["methods"].items()}
+    plots = write_plots(records, probes, success, out / "plots", max_traces=results["config"]["trace_plots"])
+    path = out / "report.md"
+    path.write_text(markdown(results, plots))
+    return path

@@ -1,0 +1,36 @@
+"""`lerobot-kvm benchmark`: grow the skill pool, run the challenge protocol for every method, write
+`results.json`, `report.md` and `plots/` (see `benchmark.protocol`)."""
+
+import argparse
+import shlex
+from pathlib import Path
+
+from ..benchmark.protocol import Benchmark, BenchmarkConfig
+
+
+def run(args: argparse.Namespace) -> int:
+    config = BenchmarkConfig.from_json(args.config)
+    if args.methods:
+        config.methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    if args.runs:
+        config.runs = args.runs
+    if args.dataset_root:
+        config.dataset_root = args.dataset_root
+    out = Path(args.output_dir)
+    launcher = shlex.split(args.launcher) if args.launcher else []
+    results = Benchmark(config, out, args.config, launcher).run()
+    print()
+    print((out / "report.md").read_text())
+    print(f"results: {out / 'results.json'}  ({results['wall_time_s'] / 60:.1f} min)")
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("benchmark", help="the knowledge-obsolescence benchmark: challenge protocol, report, plots")
+    p.add_argument("--config", required=True, help="benchmark config (see configs/benchmark_*.json)")
+    p.add_argument("--output-dir", required=True, help="where the pool, episodes, results and report go (resumable)")
+    p.add_argument("--methods", help="comma list overriding the config's methods")
+    p.add_argument("--runs", type=int, help="override the number of runs R")
+    p.add_argument("--dataset-root", help="the pool sequence's dataset (default datasets/kvm_cl_<sequence name>)")
+    p.add_argument("--launcher", help="multi-process launcher for the pool's lerobot-train stages (as train-continual)")
+    p.set_defaults(func=run)

@@ -1,0 +1,109 @@
+"""The benchmark: config validation (fast) and a tiny real run of every method from the tiny pool (slow)."""
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from lerobot_kvm.benchmark.protocol import BenchmarkConfig, episode_fields, episode_seed
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+
+
+def test_every_shipped_benchmark_config_loads_and_names_a_shipped_sequence():
+    paths = sorted(CONFIGS.glob("benchmark_*.json"))
+    assert paths
+    for path in paths:
+        config = BenchmarkConfig.from_json(path)
+        assert (CONFIGS.parent / config.sequence).exists(), config.sequence
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"methods": ["coda_kvm", "diffusion"]}, "diffusion"),
+        ({"scenarios": ["egg_vs_stone", "teapot"]}, "teapot"),
+        ({"controls": ["prior", "sideways"]}, "sideways"),
+        ({"passes": 0}, "passes"),
+    ],
+)
+def test_bad_benchmark_configs_are_rejected_with_the_offending_value(change, message):
+    raw = {"name": "x", "sequence": "configs/cl_tiny.json", "scenarios": ["egg_vs_stone"], **change}
+    with pytest.raises(ValueError, match=message):
+        BenchmarkConfig(**raw)
+
+
+def test_episode_seeds_are_distinct_per_role_and_far_from_recording_and_cl_seeds():
+    seeds = {episode_seed(0, r, p, i, o) for r in range(5) for p in (1, 2, 3) for i in range(18) for o in range(4)}
+    assert len(seeds) == 5 * 3 * 18 * 4
+    assert min(seeds) > 100_000 + 10_000
+
+
+def test_episode_fields_without_a_validity_trace():
+    fields = episode_fields({"outcome": "failure", "steps": 7, "catastrophe_kind": "", "trace": None})
+    assert fields["series"] is None and fields["gate_steps"] == 0 and fields["first_intervention"] is None
+
+
+@pytest.mark.slow
+def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
+    base: Path = tiny_pool["base"]
+    config = {
+        "name": "tiny",
+        "sequence": str(CONFIGS / "cl_tiny.json"),
+        "scenarios": ["egg_vs_stone", "chip_bag"],
+        "methods": ["coda_kvm", "coda_prompt", "no_smart_gate", "no_energy_model", "act"],
+        "passes": 2,
+        "feedback_steps": 2,
+        "finetune_batch": 4,
+        "overhead_steps": 10,
+        "dataset_root": str(tiny_pool["data"]),
+    }
+    config_path = base / "benchmark_tiny.json"
+    config_path.write_text(json.dumps(config))
+    out = base / "bench"
+    cmd = [tiny_pool["cli"], "benchmark", f"--config={config_path}", f"--output-dir={out}", tiny_pool["launcher"]]
+    proc = subprocess.run(cmd, env=tiny_pool["env"], capture_output=True, text=True, timeout=1200)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-5000:]
+    assert "lerobot-train" not in proc.stdout  # the pool grown by train-continual is reused as it is
+
+    results = json.loads((out / "results.json").read_text())
+    assert list(results["methods"]) == config["methods"]
+    for name, res in results["methods"].items():
+        overall = res["overall"]
+        assert overall["challenges"] == 4, name  # 2 scenarios x 2 passes
+        assert set(overall["per_category"]) == {"B", "C"}
+        assert 0.0 <= overall["catastrophic_failure_rate"] <= 1.0
+        assert set(res["per_pass"]) == {"1", "2"}
+    assert results["methods"]["coda_prompt"]["overall"]["gate_activation_rate"] is None
+    assert results["methods"]["act"]["overall"]["validity_auroc"] is None
+    kvm = results["methods"]["coda_kvm"]["overall"]
+    assert 0.0 <= kvm["gate_activation_rate"] <= 1.0 and 0.0 <= kvm["false_intervention_rate"] <= 1.0
+    assert kvm["validity_auroc"] is not None  # egg_vs_stone's prior skill is in the pool: it is probed
+    assert results["overhead"]["ratio_gate_closed"] > 0 and results["overhead"]["kvm_state_mb"] > 0
+    assert set(results["pool"]["continual_metrics"]) == {"coda_kvm", "act_joint"}
+    assert {"lerobot", "torch", "mujoco"} <= set(results["versions"])
+
+    run = json.loads((out / "episodes" / "coda_kvm" / "run_0.json").read_text())
+    kinds = {(r["scenario"], r["kind"]) for r in run["records"]}
+    assert ("chip_bag", "control") in kinds and ("egg_vs_stone", "prior") in kinds
+    assert ("egg_vs_stone", "control") not in kinds  # a scenario without a benign variant has no such control
+    assert all(r["series"] is not None for r in run["records"])
+    act_run = json.loads((out / "episodes" / "act" / "run_0.json").read_text())
+    assert all(r["series"] is None for r in act_run["records"])
+    failed_first = [r for r in act_run["records"] if r["kind"] == "challenge" and r["attempt"] == 1]
+    failed_first = [r for r in failed_first if r["outcome"] != "success"]
+    assert len(act_run["feedback"]) == len(failed_first)  # one fine-tuning per failed first attempt
+
+    report = (out / "report.md").read_text()
+    for heading in ("Table 1/9", "Table 4", "Table 10", "Table 11"):
+        assert heading in report
+    assert "| coda_kvm |" in report and "| act |" in report
+    assert (out / "plots" / "success_by_pass.png").stat().st_size > 0
+    assert (out / "plots" / "energy_histograms.png").stat().st_size > 0
+
+    # A second invocation finds every (method, run) on disk and runs no episode again.
+    stamps = {p: p.stat().st_mtime_ns for p in (out / "episodes").rglob("run_*.json")}
+    proc = subprocess.run(cmd, env=tiny_pool["env"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert {p: p.stat().st_mtime_ns for p in stamps} == stamps

@@ -1,0 +1,87 @@
+"""Benchmark metrics against hand-computed cases."""
+
+import pytest
+
+from lerobot_kvm.benchmark.metrics import challenges, detection_leads, format_kn, success_by_pass, summarize
+
+
+def _ep(kind: str, outcome: str, scenario: str = "egg", category: str = "A", pass_: int = 1, attempt: int = 1, **kw):
+    record = {
+        "method": "m",
+        "run": 0,
+        "pass": pass_,
+        "scenario": scenario,
+        "category": category,
+        "kind": kind,
+        "attempt": attempt,
+        "outcome": outcome,
+        "steps": 10,
+        "gate_steps": 0,
+        "intervention_steps": 0,
+        "first_intervention": None,
+    }
+    record.update(kw)
+    return record
+
+
+RECORDS = [
+    # egg (A), pass 1: attempt 1 catastrophe after an intervention at step 3 (the expert would crash at 8), solved
+    # at attempt 2
+    _ep("challenge", "catastrophe", intervention_steps=4, first_intervention=3, reference_catastrophe_step=8),
+    _ep("challenge", "success", attempt=2, intervention_steps=2),
+    _ep("prior", "success", gate_steps=1),
+    _ep("control", "success", intervention_steps=1),
+    # drawer (B), pass 1: first attempt succeeds
+    _ep("challenge", "success", scenario="drawer", category="B", reference_catastrophe_step=None),
+    _ep("prior", "failure", scenario="drawer", category="B", gate_steps=3),
+    # egg (A), pass 2: both attempts fail (no catastrophe)
+    _ep("challenge", "failure", pass_=2, reference_catastrophe_step=5),
+    _ep("challenge", "failure", pass_=2, attempt=2),
+]
+
+
+def test_format_kn_prints_counts_and_percent() -> None:
+    assert format_kn(3, 4) == "3/4 (75.0%)"
+    assert format_kn(0, 0) == "0/0 (-)"
+    assert format_kn(1, 3) == "1/3 (33.3%)"
+
+
+def test_challenges_group_attempts_and_count_either_attempt_as_solved() -> None:
+    chall = {(c["scenario"], c["pass"]): c for c in challenges(RECORDS)}
+    assert len(chall) == 3
+    assert chall[("egg", 1)]["solved"] and not chall[("egg", 1)]["first"]
+    assert chall[("drawer", 1)]["solved"] and chall[("drawer", 1)]["first"]
+    assert not chall[("egg", 2)]["solved"]
+
+
+def test_summary_metrics_match_hand_counts() -> None:
+    probes = [{"pass": 1, "v_hazard": [0.0, 0.2], "v_safe": [1.0, 0.9, 0.1]}]
+    s = summarize(RECORDS, probes)
+    assert s["challenges"] == 3
+    assert s["success_rate"] == pytest.approx(2 / 3) and s["success"] == "2/3 (66.7%)"
+    assert s["first_attempt_success_rate"] == pytest.approx(1 / 3)
+    assert s["catastrophic_failure_rate"] == pytest.approx(1 / 5)  # 5 challenge attempts, 1 catastrophe
+    assert s["per_category"] == {"A": "1/2 (50.0%)", "B": "1/1 (100.0%)"}
+    assert s["prior_retention"] == pytest.approx(1 / 2)
+    assert s["control_success_rate"] == 1.0
+    assert s["false_intervention_rate"] == pytest.approx(1 / 3)  # 3 controls, the benign one intervened
+    assert s["gate_activation_rate"] == pytest.approx(4 / 20)  # prior controls: 1 + 3 gate steps of 20
+    assert s["intervention_rate"] == pytest.approx(6 / 50)
+    # risk 1 - v: hazardous 1.0, 0.8 vs safe 0.0, 0.1, 0.9 -> 5 of 6 pairs ordered, 1 reversed (0.8 < 0.9)
+    assert s["validity_auroc"] == pytest.approx(5 / 6)
+    assert s["detection_lead_steps"] == 5
+
+
+def test_methods_without_validity_report_none_for_kvm_statistics() -> None:
+    s = summarize(RECORDS, validity=False)
+    assert s["success_rate"] == pytest.approx(2 / 3)
+    for key in ("false_intervention_rate", "gate_activation_rate", "validity_auroc", "detection_lead_steps"):
+        assert s[key] is None
+
+
+def test_detection_lead_needs_an_intervention_and_a_reference_catastrophe() -> None:
+    assert detection_leads(RECORDS) == [5]
+
+
+def test_success_by_pass() -> None:
+    assert success_by_pass(RECORDS) == {1: 1.0, 2: 0.0}
