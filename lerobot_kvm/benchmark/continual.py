@@ -419,6 +419,15 @@ def _pct(value: float | None) -> str:
     return "-" if value is None else f"{100 * value:.0f}"
 
 
+def training_minutes(result: dict[str, Any]) -> float | None:
+    """A method's recorded training wall time (its pretraining, if any, + stages) in minutes; None when it trained
+    nothing itself (evaluation-only) or a stage's time is missing."""
+    stages = result.get("train_wall_s") or []
+    if not stages or any(t is None for t in stages):
+        return None
+    return (sum(stages) + (result.get("pretrain_train_wall_s") or 0.0)) / 60
+
+
 def markdown_report(report: dict[str, Any]) -> str:
     """Metrics per method, then each method's success matrix (rows: after stage, columns: task)."""
     tasks = report["tasks"]
@@ -426,14 +435,16 @@ def markdown_report(report: dict[str, Any]) -> str:
         f"# Continual learning: sequence `{report['sequence']}`",
         "",
         f"{len(tasks)} tasks, {report['config']['eval_episodes']} evaluation episodes per task and stage "
-        f"(seed {report['seeds']['eval']}), wall time {report['wall_time_s'] / 60:.1f} min.",
+        f"(seed {report['seeds']['eval']}); this invocation's wall time {report['wall_time_s'] / 60:.1f} min.",
         "",
-        "| method | policy | mode | A_N (%) | F_N (pp) | FWT (%) | NBT (pp) | AUC (%) |",
-        "|---|---|---|---|---|---|---|---|",
+        "| method | policy | mode | A_N (%) | F_N (pp) | FWT (%) | NBT (pp) | AUC (%) | training (min) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, res in report["methods"].items():
         m = res["metrics"]
         cells = [_pct(m.get(key)) for key in ("A_N", "F_N", "FWT", "NBT", "AUC")]
+        minutes = training_minutes(res)
+        cells.append("-" if minutes is None else f"{minutes:.0f}")
         lines.append(f"| {name} | {res['policy']} | {res['mode']} | " + " | ".join(cells) + " |")
     lines += ["", "A_N / F_N: CODA-Prompt's final average success and forgetting; FWT / NBT / AUC: LIBERO's.", ""]
     header = "| after stage | " + " | ".join(f"{j}: {t}" for j, t in enumerate(tasks)) + " |"

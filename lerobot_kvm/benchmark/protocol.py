@@ -13,8 +13,9 @@
 3. **Controls**, interleaved after every challenge: the scenario's prior variant (the old skill is still right)
    and, where the scenario has one, its benign-novelty `control` variant.
 4. **Validity probes** before each first attempt (validity methods): v and E of the scenario's prior skill along
-   the prior skill's scripted expert on the shifted variant (from the step the shift shows) and on the prior
-   variant, same seed. The shifted expert's catastrophe step is the reference for the detection lead.
+   the scripted experts' shifted-variant contexts (from the step the shift shows: hazardous) and along the prior
+   skill's expert on the prior variant (safe), same seed. The prior skill's shifted expert's catastrophe step is
+   the reference for the detection lead.
 
 The unit of resumption is one (method, run): its episode records are written when it finishes, and a later
 invocation reuses them. Nothing the policy sees carries the variant, object parameters or hazard labels.
@@ -317,19 +318,30 @@ class Benchmark:
     def _probe(
         policy: Any, pre: Any, base: dict[str, Any], seed: int, reference: dict[str, Any]
     ) -> dict[str, Any] | None:
-        """v and E of the scenario's prior skill: hazardous after the shift shows, safe on the prior variant."""
-        info = SCENARIOS[base["scenario"]].info
-        skill = skill_index(policy, base["scenario"], info.prior_skill)
+        """v and E of the scenario's prior skill. Hazardous: the shifted contexts both scripted experts sense once
+        the shift shows (the prior skill's own attempt often ends at the harm, the safe skill's goes on); safe:
+        the prior skill's expert on the prior variant. Same seed throughout."""
+        scenario = base["scenario"]
+        info = SCENARIOS[scenario].info
+        skill = skill_index(policy, scenario, info.prior_skill)
         if skill is None:
             return None
-        env = KvmObsolescenceEnv(base["scenario"], variant="prior")
-        try:
-            prior_demo, _ = expert_rollout(env, info.prior_skill, pre, seed=seed)
-        finally:
-            env.close()
-        hazardous = _from_step(reference, shift_step(prior_demo, reference))
-        v_h, e_h = prior_skill_scores(policy, [hazardous], skill)
-        v_s, e_s = prior_skill_scores(policy, [prior_demo], skill)
+        rollouts = {}
+        for variant in ("prior", "shifted"):
+            env = KvmObsolescenceEnv(scenario, variant=variant)
+            try:
+                for expert in (info.prior_skill, info.safe_skill):
+                    if (variant, expert) != ("shifted", info.prior_skill):
+                        rollouts[variant, expert] = expert_rollout(env, expert, pre, seed=seed)[0]
+            finally:
+                env.close()
+        rollouts["shifted", info.prior_skill] = reference
+        hazardous = [
+            _from_step(rollouts["shifted", e], shift_step(rollouts["prior", e], rollouts["shifted", e]))
+            for e in (info.prior_skill, info.safe_skill)
+        ]
+        v_h, e_h = prior_skill_scores(policy, hazardous, skill)
+        v_s, e_s = prior_skill_scores(policy, [rollouts["prior", info.prior_skill]], skill)
         return {**base, "v_hazard": v_h, "e_hazard": e_h, "v_safe": v_s, "e_safe": e_s}
 
     def _controls(

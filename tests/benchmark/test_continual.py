@@ -89,3 +89,12 @@ def test_tiny_sequence_runs_every_method_through_the_real_clis(tiny_pool):
     # A second invocation resumes: every stage and evaluation is found on disk and nothing is retrained.
     proc = subprocess.run(tiny_pool["cmd"], env=tiny_pool["env"], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0 and "lerobot-train" not in proc.stdout
+
+
+def test_training_minutes_add_pretraining_and_stages_and_skip_evaluation_only_methods():
+    from lerobot_kvm.benchmark.continual import training_minutes
+
+    assert training_minutes({"pretrain_train_wall_s": 60.0, "train_wall_s": [30.0, 30.0]}) == 2.0
+    assert training_minutes({"pretrain_train_wall_s": None, "train_wall_s": [120.0]}) == 2.0
+    assert training_minutes({"pretrain_train_wall_s": None, "train_wall_s": []}) is None  # evaluated only
+    assert training_minutes({"pretrain_train_wall_s": 5.0, "train_wall_s": [None, 3.0]}) is None
