@@ -52,10 +52,11 @@ def method_table(results: dict[str, Any]) -> list[str]:
                 _pct(o["prior_retention"]),
                 _pct(o["control_success_rate"]),
                 _pct(o["false_intervention_rate"]),
+                _num(res["wall_time_s"] / 60),
             ]
         )
     header = ["method", "success (%)", "1st attempt (%)", "CFR (%)", "prior retention (%)", "benign control (%)"]
-    return _table([*header, "false interventions (%)"], rows)
+    return _table([*header, "false interventions (%)", "episodes + feedback (min)"], rows)
 
 
 def gate_table(results: dict[str, Any]) -> list[str]:
@@ -117,7 +118,7 @@ def markdown(results: dict[str, Any], plots: list[Path]) -> str:
         "",
         f"{len(cfg['scenarios'])} scenarios x {cfg['passes']} passes x {cfg['runs']} runs per method; feedback: the "
         f"failed trace, one corrective demonstration and {cfg['feedback_steps']} gradient steps. "
-        f"Wall time {results['wall_time_s'] / 60:.1f} min.",
+        f"This invocation's wall time {results['wall_time_s'] / 60:.1f} min (finished runs are reused).",
         "",
         "## Success per category and pass (Table 1/9)",
         "",

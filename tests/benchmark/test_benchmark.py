@@ -81,7 +81,7 @@ def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
     assert 0.0 <= kvm["gate_activation_rate"] <= 1.0 and 0.0 <= kvm["false_intervention_rate"] <= 1.0
     assert kvm["validity_auroc"] is not None  # egg_vs_stone's prior skill is in the pool: it is probed
     assert results["overhead"]["ratio_gate_closed"] > 0 and results["overhead"]["kvm_state_mb"] > 0
-    assert set(results["pool"]["continual_metrics"]) == {"coda_kvm", "act_joint"}
+    assert {"coda_kvm", "act_joint"} <= set(results["pool"]["continual_metrics"])
     assert {"lerobot", "torch", "mujoco"} <= set(results["versions"])
 
     run = json.loads((out / "episodes" / "coda_kvm" / "run_0.json").read_text())
@@ -107,3 +107,4 @@ def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
     proc = subprocess.run(cmd, env=tiny_pool["env"], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
+    assert json.loads((out / "results.json").read_text())["overhead"] == results["overhead"]  # measured once
