@@ -125,3 +125,15 @@ def success_by_pass(records: Sequence[Record]) -> dict[int, float]:
         p: sum(c["solved"] for c in chall if c["pass"] == p) / sum(c["pass"] == p for c in chall)
         for p in sorted({c["pass"] for c in chall})
     }
+
+
+def method_summary(records: Sequence[Record], probes: Sequence[Record], passes: int, validity: bool) -> dict[str, Any]:
+    """One method's metrics overall and per pass (keys "1".."P"), and its solved rate per pass."""
+    return {
+        "overall": summarize(records, probes, validity),
+        "per_pass": {
+            str(p): summarize([r for r in records if r["pass"] == p], [q for q in probes if q["pass"] == p], validity)
+            for p in range(1, passes + 1)
+        },
+        "success_by_pass": success_by_pass(records),
+    }

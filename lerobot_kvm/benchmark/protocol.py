@@ -415,22 +415,18 @@ class Benchmark:
             for method in cfg.methods:
                 checkpoint = checkpoints["kvm" if method in KVM_METHODS else "act"]
                 per_method[method] = self._method_runs(method, checkpoint, bar)
-        methods: dict[str, Any] = {}
-        for method, runs in per_method.items():
-            records = [r for run in runs for r in run["records"]]
-            probes = [p for run in runs for p in run["probes"]]
-            validity = uses_validity(method)
-            methods[method] = {
-                "overall": metrics.summarize(records, probes, validity),
-                "per_pass": {
-                    str(p): metrics.summarize(
-                        [r for r in records if r["pass"] == p], [q for q in probes if q["pass"] == p], validity
-                    )
-                    for p in range(1, cfg.passes + 1)
-                },
-                "success_by_pass": metrics.success_by_pass(records),
-                "wall_time_s": sum(run["wall_time_s"] for run in runs),
-            }
+        records = [r for runs in per_method.values() for run in runs for r in run["records"]]
+        probes = [p for runs in per_method.values() for run in runs for p in run["probes"]]
+        methods = {
+            method: metrics.method_summary(
+                [r for r in records if r["method"] == method],
+                [p for p in probes if p["method"] == method],
+                cfg.passes,
+                uses_validity(method),
+            )
+            | {"wall_time_s": sum(run["wall_time_s"] for run in runs)}
+            for method, runs in per_method.items()
+        }
         overhead = self.overhead(checkpoints["kvm"]) if "kvm" in checkpoints else None
         results = {
             "benchmark": cfg.name,
@@ -448,8 +444,6 @@ class Benchmark:
             "wall_time_s": time.time() - start,
         }
         (self.out / "results.json").write_text(json.dumps(results, indent=2))
-        records = [r for runs in per_method.values() for run in runs for r in run["records"]]
-        probes = [p for runs in per_method.values() for run in runs for p in run["probes"]]
         write_report(results, records, probes, self.out)
         return results
 
