@@ -3,4 +3,10 @@
 Importing the package registers the `coda_kvm` policy and the `kvm_obsolescence` env type.
 """
 
-from . import envs, policy  # noqa: F401
+import os
+
+# The suite renders offscreen; MuJoCo picks its GL backend when it is first imported, so the headless default
+# is set before that (an explicit MUJOCO_GL always wins).
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from . import envs, policy  # noqa: E402, F401

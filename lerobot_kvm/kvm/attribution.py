@@ -1,8 +1,10 @@
 """Verification-based attribution and knowledge-gap confirmation (paper App. D).
 
-A failure forms a low-confidence hypothesis "skill i is risky in context C" (the culprit is the skill that
-carried the largest share of the fused prompt just before the failure: the minimal counterfactual, removing it
-is the smallest change to what was executed). Later attempts verify it: when the KVM suppresses skill i
+A failure forms a low-confidence hypothesis "skill i is risky in context C" (the culprit is the skill the CL
+core relied on most just before the failure, its largest share of the CODA prompt: the minimal counterfactual,
+removing it is the smallest change that takes that knowledge out. The share is taken before the KVM's
+re-weighting, so a failure while the culprit was already suppressed counts against its hypothesis instead of
+passing the blame to whichever skills were left in force). Later attempts verify it: when the KVM suppresses skill i
 (v_i < tau_v) in a context similar to C and the attempt succeeds, the hypothesis's intervention counter is
 incremented (persistence). An intervention confirms the hypothesis when the counter exceeds N_p *and* the
 suppressed skill was a high-relevance option of the CL core (normalised alpha_i > tau_high: necessity). A failure
@@ -124,20 +126,19 @@ class HypothesisTable(nn.Module):
 
 
 def normalised_relevance(alphas: Tensor, active: Tensor) -> Tensor:
-    """r_i = |alpha_i| / max_j |alpha_j| over active skills (the dominant skill has r = 1); 0 for inactive ones.
+    """r_i = alpha_i / max_j alpha_j over active skills (the dominant skill has r = 1); 0 for inactive ones.
 
-    CODA relevances are signed cosines without softmax and a skill with a large negative alpha still shapes the
-    fused prompt as much as one with a large positive alpha, so a skill's relevance is its magnitude."""
+    alphas: per-skill relevance (the size of each skill's prompt contribution, non-negative)."""
     masked = alphas.abs() * active.to(alphas)
     return masked / masked.amax(-1, keepdim=True).clamp_min(1e-8)
 
 
-def culprit_skill(weights: Tensor, alphas: Tensor, last_k: int) -> int:
-    """Minimal counterfactual: the skill with the largest mean share of the fused prompt over the last K steps.
+def culprit_skill(alphas: Tensor, last_k: int) -> int:
+    """Minimal counterfactual: the skill with the largest mean share of the CODA prompt over the last K steps.
 
-    weights, alphas: [T, S] (skill weights s_i given to the pool and per-skill relevance).
+    alphas: [T, S] per-skill relevance before any KVM re-weighting (zero for pruned skills).
     """
-    contribution = (weights * alphas).abs()[-last_k:]
+    contribution = alphas.abs()[-last_k:]
     share = contribution / contribution.sum(-1, keepdim=True).clamp_min(1e-8)
     return int(share.mean(0).argmax())
 

@@ -81,6 +81,12 @@ class KvmConfig:
     safe_online_capacity: int = 1024  # FIFO of safe samples met online
     fail_offline_capacity: int = 512  # reservoir over recorded failure frames (non-benchmark contexts)
     fail_online_capacity: int = 1024  # provisional and confirmed (permanent) h_fail negatives
+    # Rare safe frames (a contact impact seen in a fraction of a percent of a skill's frames) are too few in a
+    # uniform replay to hold a low energy against the synthetic negatives. Safe frames the energy model still
+    # judges invalid when it meets them (v < hard_safe_validity) go into a FIFO that is replayed every step.
+    hard_safe_capacity: int = 512
+    hard_safe_replay: int = 16  # replayed hard safe samples per offline / online step (0: off)
+    hard_safe_validity: float = 0.5
 
     # ------------------------------------------------------------------ online learning (feedback API)
     feedback_steps: int = 100  # default gradient-step budget of one feedback call
@@ -127,6 +133,7 @@ class KvmConfig:
             "safe_online_capacity": self.safe_online_capacity,
             "fail_offline_capacity": self.fail_offline_capacity,
             "fail_online_capacity": self.fail_online_capacity,
+            "hard_safe_capacity": self.hard_safe_capacity,
             "feedback_batch": self.feedback_batch,
             "fail_context_steps": self.fail_context_steps,
             "hypothesis_capacity": self.hypothesis_capacity,

@@ -2,14 +2,15 @@
 
 The paper fuses P_fused = sum_i w_i P_i / (sum_i w_i + eps) with w_i = v_i * alpha_i. The CODA prompt is the
 *unnormalised* sum sum_i c_i of the skills' contributions c_i = sum_{m in i} alpha_m P_m (alpha_m signed cosines,
-no softmax), so eq. 3 is applied as a re-weighting of those contributions that is the identity at v = 1:
+no softmax), so eq. 3 is applied as a re-weighting of those contributions that is the identity at v = 1 (a skill's
+relevance alpha_i is the size ||c_i|| of its contribution, see `CodaPromptPool.skill_relevance`):
 
 * default (`renormalize=False`): skill weights s_i = v_i, i.e. P_fused = sum_i v_i c_i and each component's
   alpha_m of skill i becomes v_i * alpha_m (w_i = v_i * alpha_i). A suppressed skill's contribution vanishes and
   the others keep exactly the magnitude they were trained with (CODA trains skill k under sum_{i<=k} c_i, so
   suppressing later skills restores an earlier skill's training prompt exactly).
-* `renormalize=True`: eq. 3's normalisation carried over, s_i = v_i * S / max(sum_j v_j |alpha_j|, eps * S) with
-  S = sum_j |alpha_j|: the suppressed relevance mass goes to the remaining skills (the factor is S / S = 1.0
+* `renormalize=True`: eq. 3's normalisation carried over, s_i = v_i * S / max(sum_j v_j alpha_j, eps * S) with
+  S = sum_j alpha_j: the suppressed relevance mass goes to the remaining skills (the factor is S / S = 1.0
   exactly at v = 1, and at most 1 / eps).
 
 Either way, at v = 1 the prompt is the CODA prompt bit for bit.

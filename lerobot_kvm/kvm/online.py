@@ -282,7 +282,7 @@ def apply_feedback(
 
     if failed:
         k = cfg.fail_context_steps
-        culprit = culprit_skill(w_used, alphas, k)
+        culprit = culprit_skill(relevance, k)
         context = sigma2 > tau
         context[-k:] = True
         context &= ~kvm.known_safe(c_raw, culprit)

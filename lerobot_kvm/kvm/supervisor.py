@@ -46,6 +46,7 @@ class KnowledgeValidityModule(nn.Module):
         self.safe_online = SampleBuffer(config.safe_online_capacity, raw_dim, "ring")
         self.fail_offline = SampleBuffer(config.fail_offline_capacity, raw_dim, "reservoir")
         self.fail_online = SampleBuffer(config.fail_online_capacity, raw_dim, "protected")
+        self.safe_hard = SampleBuffer(config.hard_safe_capacity, raw_dim, "ring")
         self.hypotheses = HypothesisTable(config.hypothesis_capacity, raw_dim, config.persistence, config.tau_high)
         self.metabolism = SkillMetabolism(
             max_skills, config.metabolism_window, config.prune_threshold, config.prune_min_interactions
@@ -232,8 +233,10 @@ class KnowledgeValidityModule(nn.Module):
 
     def loss_terms(
         self, safe_c: Tensor, safe_s: Tensor, routine: Tensor, fail_c: Tensor, fail_s: Tensor
-    ) -> tuple[Tensor, dict[str, Tensor]]:
-        """recon + L_contrast + lambda * L_energy + BCE on one set of safe and hazardous (context, skill) pairs."""
+    ) -> tuple[Tensor, dict[str, Tensor], Tensor]:
+        """recon + L_contrast + lambda * L_energy + BCE on one set of safe and hazardous (context, skill) pairs.
+
+        Returns the loss, its metrics and the safe samples' energies (detached)."""
         cfg = self.config
         mu_s, parts_s, _ = self._encode_parts(safe_c)
         h_s = self.joint(mu_s, safe_s)
@@ -267,7 +270,7 @@ class KnowledgeValidityModule(nn.Module):
             "v_fail": validity(e_f, cfg.gamma, cfg.l0).mean() if len(e_f) else zero,
             "n_fail": torch.tensor(float(len(e_f))),
         }
-        return loss, metrics
+        return loss, metrics, e_s.detach()
 
     @staticmethod
     def _same_skill_partner(skills: Tensor) -> Tensor:
@@ -316,23 +319,36 @@ class KnowledgeValidityModule(nn.Module):
             self.fail_offline.add(c_raw[fail].detach(), skills[fail])
         rc, rs, rf = self._replay(self.safe_offline, n)
         oc, os_, of = self._replay(self.safe_online, n if len(self.safe_online) else 0)
-        safe_c = torch.cat([c_raw[safe], rc, oc])
-        safe_s = torch.cat([skills[safe], rs, os_])
-        routine = torch.cat([torch.ones(int(safe.sum()), dtype=torch.int64, device=rf.device), rf, of]) & ROUTINE > 0
+        hc, hs, hf = self._replay(self.safe_hard, self.config.hard_safe_replay if len(self.safe_hard) else 0)
+        safe_c = torch.cat([c_raw[safe], rc, oc, hc])
+        safe_s = torch.cat([skills[safe], rs, os_, hs])
+        n_new = int(safe.sum())
+        routine = torch.cat([torch.ones(n_new, dtype=torch.int64, device=rf.device), rf, of, hf]) & ROUTINE > 0
         neg_c, neg_s = self.negatives_for(safe_c, safe_s, active)
         fc1, fs1, _ = self._replay(self.fail_offline, n if len(self.fail_offline) else 0)
         fc2, fs2, _ = self._replay(self.fail_online, n if len(self.fail_online) else 0)
         fail_c = torch.cat([c_raw[fail], fc1, fc2, neg_c])
         fail_s = torch.cat([skills[fail], fs1, fs2, neg_s])
-        loss, metrics = self.loss_terms(safe_c, safe_s, routine, fail_c, fail_s)
+        loss, metrics, e_safe = self.loss_terms(safe_c, safe_s, routine, fail_c, fail_s)
         with torch.no_grad():
+            self.keep_hard_safe(c_raw[safe], skills[safe], e_safe[:n_new], tags)
             tau = self.gate.refresh(self.encoder, self.gate_memory)[0]
             _, sigma2_now, _ = self.encode(c_raw[safe]) if bool(safe.any()) else (None, c_raw.new_zeros(0), None)
         out = {f"kvm_{k}": float(v.detach()) for k, v in metrics.items()}
         out["kvm_tau"] = float(tau)
         out["kvm_sigma2"] = float(sigma2_now.mean()) if len(sigma2_now) else 0.0
         out["kvm_gate_rate"] = float((sigma2_now > tau).float().mean()) if len(sigma2_now) else 0.0
+        out["kvm_hard_safe"] = float(len(self.safe_hard))
         return loss, out
+
+    @torch.no_grad()
+    def keep_hard_safe(self, c_raw: Tensor, skills: Tensor, energy: Tensor, tags: Tensor | int = -1) -> int:
+        """Store the safe samples the energy model still judges invalid (v < hard_safe_validity) for replay."""
+        cfg = self.config
+        hard = validity(energy, cfg.gamma, cfg.l0) < cfg.hard_safe_validity
+        if isinstance(tags, Tensor):
+            tags = tags[hard]
+        return self.safe_hard.add(c_raw[hard], skills[hard], ROUTINE, tags)
 
     def train_online(
         self,
@@ -372,6 +388,11 @@ class KnowledgeValidityModule(nn.Module):
                         parts_c.append(c)
                         parts_s.append(s)
                         parts_r.append((f & ROUTINE) > 0)
+                if len(self.safe_hard):
+                    c, s, f = self._replay(self.safe_hard, cfg.hard_safe_replay)
+                    parts_c.append(c)
+                    parts_s.append(s)
+                    parts_r.append((f & ROUTINE) > 0)
                 if not parts_c:
                     break
                 safe_c, safe_s, routine = torch.cat(parts_c), torch.cat(parts_s), torch.cat(parts_r)
@@ -388,7 +409,7 @@ class KnowledgeValidityModule(nn.Module):
                 neg_c, neg_s = self.negatives_for(safe_c, safe_s, active)
                 fparts_c.append(neg_c)
                 fparts_s.append(neg_s)
-                loss, metrics = self.loss_terms(safe_c, safe_s, routine, torch.cat(fparts_c), torch.cat(fparts_s))
+                loss, metrics, _ = self.loss_terms(safe_c, safe_s, routine, torch.cat(fparts_c), torch.cat(fparts_s))
                 optimizer.zero_grad()
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(params, 10.0)

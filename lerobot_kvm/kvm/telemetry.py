@@ -17,7 +17,7 @@ class KvmStepTelemetry:
 
     sigma2 [B]: sigma_c^2 of the current frame; sigma2_gate [B]: what the gate compared (mean over the last
     `context_window` frames); tau []: tau_adaptive (eq. 1), -inf while there are no statistics; gate [B] bool:
-    full assessment ran; alpha [B, S]: per-skill CODA relevance alpha_i; energy [B, S]: E_theta(h_i) (or the
+    full assessment ran; alpha [B, S]: per-skill relevance alpha_i = ||c_i||; energy [B, S]: E_theta(h_i) (or the
     classifier's energy-equivalent), NaN where not assessed; validity [B, S]: v_i (1 where the gate was closed, 0
     where invalid or pruned); skill_weight [B, S]: weight given to the pool (see kvm.fusion); invalid [B, S] bool:
     non-finite context, code or energy -> v_i = 0 (fail-safe); active [S] bool: skills not pruned.

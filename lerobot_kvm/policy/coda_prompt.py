@@ -15,8 +15,9 @@ Differences that fix pitfalls of the official code:
 * new rows are made orthogonal to the span of all earlier rows (earlier rows are first orthonormalised,
   since trained rows are no longer mutually orthogonal).
 
-The components owned by one task form a *skill*. Per-skill relevance and per-skill prompt contributions
-are exposed so the KVM can weight skills (eq. 3): with every weight 1 the fused prompt is the CODA prompt.
+The components owned by one task form a *skill*. Per-skill prompt contributions c_i and their sizes (the
+skill's relevance) are exposed so the KVM can weight skills (eq. 3): with every weight 1 the fused prompt is
+the CODA prompt.
 """
 
 import json
@@ -181,18 +182,25 @@ class CodaPromptPool(nn.Module):
         return torch.einsum("lbmd,lmd->lbm", attended, keys)
 
     def skill_relevance(self, query: Tensor) -> Tensor:
-        """alpha_i [B, n_skills]: sum of the skill's component alphas, averaged over prompted layers."""
+        """alpha_i [B, n_skills] >= 0: how strongly skill i shapes the prompt, ||c_i|| over all prompted layers.
+
+        The component alphas alone do not say this: they are cosines, and a skill learned later can act through
+        small alphas on large prompts (a frozen query keeps its cosines with new keys small). The size of the
+        skill's contribution is what the prompt actually receives from it."""
         return self.relevance_from_alphas(self.component_alphas(query))
 
     def relevance_from_alphas(self, alphas: Tensor) -> Tensor:
         """`skill_relevance` from already computed component alphas [n_layers, B, M_visible]."""
-        return alphas.unflatten(-1, (self.n_skills, self.per_task)).sum(-1).mean(0)
+        return self.contributions_from_alphas(alphas).square().sum((0, 3, 4)).sqrt()
 
     def skill_prompts(self, query: Tensor) -> Tensor:
         """c_i [n_layers, B, n_skills, Lp, D] = sum_{m in skill i} alpha_m P_m; summed: the CODA prompt."""
-        alphas = self.component_alphas(query).unflatten(-1, (self.n_skills, self.per_task))
+        return self.contributions_from_alphas(self.component_alphas(query))
+
+    def contributions_from_alphas(self, alphas: Tensor) -> Tensor:
+        """`skill_prompts` from already computed component alphas [n_layers, B, M_visible]."""
         prompts = self._visible("prompts").unflatten(1, (self.n_skills, self.per_task))
-        return torch.einsum("lbsm,lsmkd->lbskd", alphas, prompts)
+        return torch.einsum("lbsm,lsmkd->lbskd", alphas.unflatten(-1, (self.n_skills, self.per_task)), prompts)
 
     def forward(self, query: Tensor, skill_weights: Tensor | None = None) -> Tensor:
         """Fused prompt [n_layers, B, Lp, D] = sum_i v_i c_i; `skill_weights` v [B, n_skills], default ones.

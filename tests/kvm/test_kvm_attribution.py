@@ -56,11 +56,11 @@ def test_hypothesis_table_evicts_the_oldest_open_row_when_full() -> None:
 
 
 def test_culprit_relevance_and_knowledge_gap() -> None:
-    alphas = torch.tensor([[2.0, -1.0, 0.5], [1.0, -3.0, 0.5], [1.0, -3.0, 0.5]])
-    weights = torch.ones(3, 3)
-    assert culprit_skill(weights, alphas, last_k=2) == 1  # largest share over the last two steps
-    assert culprit_skill(weights, alphas, last_k=3) == 1
-    assert culprit_skill(torch.tensor([[1.0, 0.0, 1.0]] * 3), alphas, last_k=3) == 0  # skill 1 was suppressed
+    alphas = torch.tensor([[2.0, 1.0, 0.5], [1.0, 3.0, 0.5], [1.0, 3.0, 0.5]])
+    assert culprit_skill(alphas, last_k=1) == 1
+    # mean shares over the 3 steps: skill 0 (4/7 + 2/9 + 2/9) / 3 = 0.339 < skill 1 (1/7 + 2/3 + 2/3) / 3 = 0.492
+    assert culprit_skill(alphas, last_k=3) == 1
+    assert culprit_skill(alphas[:1], last_k=3) == 0
     active = torch.tensor([True, True, False])
     r = normalised_relevance(alphas, active)
     torch.testing.assert_close(r[0], torch.tensor([1.0, 0.5, 0.0]))
@@ -118,6 +118,26 @@ def test_confirmed_gap_creates_a_new_skill_trained_alone(make_policy, attempt) -
     for k, v in policy.pool.tasks[0].state_dict().items():
         assert torch.equal(v, old_skill[k]), k
     assert "focused_l1" in new and new["seed_frames"] == 6
+
+
+def test_a_failure_with_the_culprit_suppressed_restarts_its_persistence(make_policy, attempt) -> None:
+    """The blame stays with the skill the core relied on: it does not pass to the skills left in force."""
+    policy = make_policy()
+    policy.begin_new_skill("gentle_grasp")
+    first = policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6, seed=0), gradient_steps=0)
+    culprit, h = first["culprit"], first["hypothesis"]["id"]
+    for _ in range(2):
+        trace = attempt(policy, EGG, steps=6, seed=0)
+        _force_suppression(trace, culprit)
+        policy.kvm_feedback("success", trace)
+    assert policy.kvm.hypotheses.info(h)["counter"] == 2
+    trace = attempt(policy, EGG, steps=6, seed=0)
+    _force_suppression(trace, culprit)
+    report = policy.kvm_feedback("failure", trace, gradient_steps=0)
+    assert report["culprit"] == culprit and report["suppressed_at_failure"]
+    assert report["hypothesis"]["id"] == h and report["hypothesis"]["failures"] == 2
+    assert report["hypothesis"]["counter"] == 0
+    assert policy.kvm.hypotheses.ids() == [h]
 
 
 def test_unnecessary_interventions_do_not_confirm(make_policy, attempt, make_kvm_config) -> None:

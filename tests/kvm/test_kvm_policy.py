@@ -148,6 +148,30 @@ def test_forward_learns_the_kvm_offline_and_reports_metrics(make_policy, make_ba
     assert len(policy.kvm.gate.window) == 8
 
 
+def test_safe_frames_still_judged_invalid_are_kept_and_replayed(make_policy, make_batch, make_kvm_config) -> None:
+    policy = two_skill_policy(make_policy, kvm=make_kvm_config(hard_safe_replay=4))
+    kvm = policy.kvm
+    c = torch.randn(6, kvm.encoder.raw_dim)
+    energy = torch.tensor([-10.0, 4.9, 5.1, 20.0, -3.0, 6.0])  # v = sigmoid(-E - l0') < 0.5 iff E > 5
+    assert kvm.keep_hard_safe(c, torch.tensor([0, 1, 1, 0, 1, 0]), energy) == 3
+    stored = kvm.safe_hard.filled()
+    torch.testing.assert_close(kvm.safe_hard.data[stored], c[[2, 3, 5]])
+    assert kvm.safe_hard.skill[stored].tolist() == [1, 0, 0]
+    seen: dict[str, torch.Tensor] = {}
+    loss_terms = kvm.loss_terms
+
+    def spy(safe_c, safe_s, routine, fail_c, fail_s):
+        seen.update(safe=safe_c, routine=routine)
+        return loss_terms(safe_c, safe_s, routine, fail_c, fail_s)
+
+    kvm.loss_terms = spy
+    policy.train()
+    policy.forward(make_batch(policy.config))
+    replayed = seen["safe"][-4:]
+    assert (torch.cdist(replayed, c[[2, 3, 5]]).min(1).values < 1e-6).all()  # every step replays hard safe rows
+    assert seen["routine"][-4:].all()
+
+
 class _Meta:
     def __init__(self, root):
         self.root = root

@@ -40,8 +40,24 @@ def test_alpha_matches_hand_computation() -> None:
     got = pool.component_alphas(query).detach().numpy()
     np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
     assert (got < 0).any(), "CODA alphas are cosines without softmax and can be negative"
+    prompts = np.concatenate([t.prompts.detach().numpy() for t in pool.tasks[:2]], axis=1)  # [L, M, Lp, D]
+    contributions = np.einsum("lbsm,lsmkd->bslkd", expected.reshape(2, 3, 2, 2), prompts.reshape(2, 2, 2, 4, 8))
     relevance = pool.skill_relevance(query).detach().numpy()
-    np.testing.assert_allclose(relevance, expected.reshape(2, 3, 2, 2).sum(-1).mean(0), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(relevance, np.sqrt((contributions**2).sum((2, 3, 4))), rtol=1e-5, atol=1e-6)
+
+
+def test_relevance_is_the_size_of_a_skills_contribution_not_its_alphas() -> None:
+    """A skill whose keys barely match the query but whose prompts are large still shapes the prompt most."""
+    pool = make_pool(2)
+    query = torch.randn(1, 16)
+    with torch.no_grad():
+        pool.tasks[1].prompts.mul_(1e3)
+    alphas = pool.component_alphas(query).unflatten(-1, (2, 2))
+    relevance = pool.skill_relevance(query)[0]
+    sizes = pool.skill_prompts(query).square().sum((0, 3, 4)).sqrt()[0]
+    torch.testing.assert_close(relevance, sizes)
+    assert alphas[..., 1, :].abs().sum() < 10 * alphas[..., 0, :].abs().sum()
+    assert relevance[1] > 100 * relevance[0]
 
 
 def test_gram_schmidt_new_rows_orthogonal_to_all_old_rows() -> None:
