@@ -189,8 +189,10 @@ class CodaPromptPool(nn.Module):
         skill's contribution is what the prompt actually receives from it."""
         return self.relevance_from_alphas(self.component_alphas(query))
 
+    @torch.no_grad()
     def relevance_from_alphas(self, alphas: Tensor) -> Tensor:
-        """`skill_relevance` from already computed component alphas [n_layers, B, M_visible]."""
+        """`skill_relevance` from already computed component alphas [n_layers, B, M_visible]; a measurement, never
+        differentiated (it may be computed lazily, after the step's inference mode has ended)."""
         return self.contributions_from_alphas(alphas).square().sum((0, 3, 4)).sqrt()
 
     def skill_prompts(self, query: Tensor) -> Tensor:
