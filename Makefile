@@ -34,8 +34,9 @@ test: setup lint
 test-fast: setup
 	$(BIN)/python -m pytest -q -m "not slow" tests
 
+# The benchmark's short form: record -> continual pretraining (lerobot-train) -> challenge protocol -> report.
 demo: setup
-	$(BIN)/lerobot-kvm demo
+	$(BIN)/lerobot-kvm benchmark --config configs/benchmark_quick.json --output-dir outputs/demo
 
 clean:
 	rm -rf $(VENV) outputs

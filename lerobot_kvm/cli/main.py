@@ -3,13 +3,23 @@
 import argparse
 import sys
 
-from . import benchmark, catalogue, check_suite, contact_sheet, demo, kvm_check, overhead, record, train_continual
+from . import (
+    benchmark,
+    catalogue,
+    check_suite,
+    contact_sheet,
+    kvm_check,
+    overhead,
+    record,
+    train_continual,
+    walkthrough,
+)
 
 COMMANDS = {
     "record": record,
     "train-continual": train_continual,
     "benchmark": benchmark,
-    "demo": demo,
+    "walkthrough": walkthrough,
     "check-suite": check_suite,
     "contact-sheet": contact_sheet,
     "catalogue": catalogue,

@@ -1,4 +1,4 @@
-"""`lerobot-kvm demo`: record -> `lerobot-train` -> `lerobot-eval` on egg_vs_stone, then print the result.
+"""`lerobot-kvm walkthrough`: record -> `lerobot-train` -> `lerobot-eval` on egg_vs_stone, then print the result.
 
 Each stage is the real tool a user would run; the exact commands are printed so they can be
 copied and varied.
@@ -57,10 +57,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="record, train and evaluate coda_kvm on egg_vs_stone")
+    p = sub.add_parser("walkthrough", help="record, train and evaluate coda_kvm on egg_vs_stone")
     p.add_argument("--spec", default=str(DEFAULT_SPEC), help="recording spec for the demo dataset")
     p.add_argument("--dataset-root", help="where the dataset lives (default datasets/<spec name>)")
-    p.add_argument("--output-dir", default="outputs/demo")
+    p.add_argument("--output-dir", default="outputs/walkthrough")
     p.add_argument("--episodes", type=int, help="override episodes per spec item")
     p.add_argument("--steps", type=int, default=800)
     p.add_argument("--batch-size", type=int, default=32)
