@@ -185,19 +185,23 @@ class KnowledgeValidityModule(nn.Module):
         )
         if cfg.force_validity is None and all_active and not bool(gate.any()):
             return None, KvmStepTelemetry(alpha=alphas, **common)  # gate closed: v = 1, plain CODA prompt
-        alphas = alphas() if callable(alphas) else alphas
         valid = torch.isfinite(sigma2)
-        energy = torch.full_like(alphas, float("nan"))
+        energy = sigma2.new_full((sigma2.shape[0], active.shape[0]), float("nan"))
         if cfg.force_validity is not None:
-            v = torch.full_like(alphas, cfg.force_validity)
+            v = torch.full_like(energy, cfg.force_validity)
             invalid = ~valid.unsqueeze(-1).expand_as(v)
         else:
-            e = self.skill_energies(mu, alphas.shape[1])
+            e = self.skill_energies(mu, active.shape[0])
             energy = torch.where(gate.unsqueeze(-1), e, energy)
             v = torch.where(gate.unsqueeze(-1), validity(e, cfg.gamma, cfg.l0), torch.ones_like(e))
             invalid = ~valid.unsqueeze(-1) | (gate.unsqueeze(-1) & ~torch.isfinite(e))
         v = torch.where(invalid | ~active.unsqueeze(0), torch.zeros_like(v), v)
-        weights = fuse_weights(v, alphas, cfg.fusion_renormalize, cfg.fusion_eps)
+        # The default fusion scales each skill by v alone, so the relevance stays lazy (telemetry may ask for it).
+        if cfg.fusion_renormalize:
+            alphas = alphas() if callable(alphas) else alphas
+            weights = fuse_weights(v, alphas, True, cfg.fusion_eps)
+        else:
+            weights = v
         telemetry = KvmStepTelemetry(
             alpha=alphas, energy=energy, validity=v, skill_weight=weights, invalid=invalid, **common
         )

@@ -169,11 +169,12 @@ class CodaPromptPool(nn.Module):
         return t
 
     # ----------------------------------------------------------------- CODA computation
-    def _visible(self, attr: str) -> Tensor:
-        """[n_layers, n_skills * per_task, ...] rows of the tasks begun so far."""
+    def _visible(self, attr: str, n_skills: int | None = None) -> Tensor:
+        """[n_layers, n_skills * per_task, ...] rows of the tasks begun so far (or of the first `n_skills`)."""
         if self.n_skills == 0:
             raise RuntimeError("no skill has been begun in the prompt pool")
-        return torch.cat([getattr(self.tasks[i], attr) for i in range(self.n_skills)], dim=1)
+        n = self.n_skills if n_skills is None else n_skills
+        return torch.cat([getattr(self.tasks[i], attr) for i in range(n)], dim=1)
 
     def component_alphas(self, query: Tensor) -> Tensor:
         """alpha [n_layers, B, M_visible] = cos(q * A_m, K_m) (no softmax, can be negative)."""
@@ -200,9 +201,11 @@ class CodaPromptPool(nn.Module):
         return self.contributions_from_alphas(self.component_alphas(query))
 
     def contributions_from_alphas(self, alphas: Tensor) -> Tensor:
-        """`skill_prompts` from already computed component alphas [n_layers, B, M_visible]."""
-        prompts = self._visible("prompts").unflatten(1, (self.n_skills, self.per_task))
-        return torch.einsum("lbsm,lsmkd->lbskd", alphas.unflatten(-1, (self.n_skills, self.per_task)), prompts)
+        """`skill_prompts` from already computed component alphas [n_layers, B, M_visible]. The skills are those the
+        alphas cover, so alphas kept from before a new skill began still give their own step's contributions."""
+        n = alphas.shape[-1] // self.per_task
+        prompts = self._visible("prompts", n).unflatten(1, (n, self.per_task))
+        return torch.einsum("lbsm,lsmkd->lbskd", alphas.unflatten(-1, (n, self.per_task)), prompts)
 
     def forward(self, query: Tensor, skill_weights: Tensor | None = None) -> Tensor:
         """Fused prompt [n_layers, B, Lp, D] = sum_i v_i c_i; `skill_weights` v [B, n_skills], default ones.

@@ -148,16 +148,20 @@ def test_forward_learns_the_kvm_offline_and_reports_metrics(make_policy, make_ba
     assert len(policy.kvm.gate.window) == 8
 
 
-def test_lazy_relevance_can_be_read_after_the_steps_inference_mode(make_policy, make_batch) -> None:
-    """With the gate closed the relevance is computed only when telemetry asks for it, maybe outside the step."""
+@pytest.mark.parametrize("gate", ["closed", "open"])
+def test_lazy_relevance_can_be_read_after_the_step(make_policy, make_batch, gate) -> None:
+    """The action needs v alone, so the relevance is computed only when telemetry asks for it: maybe after the
+    step's inference mode has ended, or after a new skill has begun."""
     policy = two_skill_policy(make_policy)
-    policy.kvm.set_gate_override("closed")
+    policy.kvm.set_gate_override(gate)
     batch = make_batch(policy.config, with_action=False)
     with torch.inference_mode():
         policy.select_action(batch)
     tele = policy.kvm_telemetry
-    torch.testing.assert_close(tele.alpha, policy.skill_relevance(batch["task"]))
-    assert not tele.intervention.any()
+    expected = policy.skill_relevance(batch["task"])
+    policy.begin_new_skill("third")
+    torch.testing.assert_close(tele.alpha, expected)
+    assert tele.intervention.shape == (4, 2)
 
 
 def test_safe_frames_still_judged_invalid_are_kept_and_replayed(make_policy, make_batch, make_kvm_config) -> None:
