@@ -300,7 +300,7 @@ class Benchmark:
                 {**challenge, "attempt": 1, "reference_catastrophe_step": ref_step} | episode_fields(first)
             )
             if first["outcome"] == "success":
-                self._report(method, policy, first)
+                out["records"][-1]["pruned"] = self._report(method, policy, first)
                 return
             demo, demo_outcome = expert_rollout(env, info.safe_skill, pre, seed=seed + 1)
             out["feedback"].append(
@@ -310,7 +310,7 @@ class Benchmark:
             out["records"].append(
                 {**challenge, "attempt": 2, "reference_catastrophe_step": None} | episode_fields(second)
             )
-            self._report(method, policy, second)
+            out["records"][-1]["pruned"] = self._report(method, policy, second)
         finally:
             env.close()
 
@@ -358,7 +358,7 @@ class Benchmark:
             finally:
                 env.close()
             out["records"].append({**base, "kind": kind, "attempt": 1, "seed": seed + offset} | episode_fields(result))
-            self._report(method, policy, result)
+            out["records"][-1]["pruned"] = self._report(method, policy, result)
 
     def _feedback(self, method: str, policy: Any, attempt: dict[str, Any], demo: dict[str, Any]) -> dict[str, Any]:
         """Spend the feedback budget after a failed first attempt; a short JSON-friendly report."""
@@ -377,12 +377,13 @@ class Benchmark:
         return {"gradient_steps": steps, "finetune": info}
 
     @staticmethod
-    def _report(method: str, policy: Any, attempt: dict[str, Any]) -> None:
-        """Report an attempt's outcome without gradient steps (validity methods: metabolism and hypotheses)."""
+    def _report(method: str, policy: Any, attempt: dict[str, Any]) -> list[int]:
+        """Report an attempt's outcome without gradient steps (validity methods: metabolism and hypotheses).
+        Returns the skills the metabolism pruned on this report."""
         if uses_validity(method):
-            policy.kvm_feedback(attempt["outcome"], attempt["trace"], gradient_steps=0)
-        else:
-            policy.reset()
+            return list(policy.kvm_feedback(attempt["outcome"], attempt["trace"], gradient_steps=0)["pruned"])
+        policy.reset()
+        return []
 
     def _method_runs(self, method: str, checkpoint: Path, bar: tqdm) -> list[dict[str, Any]]:
         runs = []

@@ -89,6 +89,8 @@ def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
     assert ("chip_bag", "control") in kinds and ("egg_vs_stone", "prior") in kinds
     assert ("egg_vs_stone", "control") not in kinds  # a scenario without a benign variant has no such control
     assert all(r["series"] is not None for r in run["records"])
+    reported = [r for r in run["records"] if r["kind"] != "challenge" or r["attempt"] == 2 or r["outcome"] == "success"]
+    assert reported and all(isinstance(r["pruned"], list) for r in reported)  # the metabolism's pruning is kept
     act_run = json.loads((out / "episodes" / "act" / "run_0.json").read_text())
     assert all(r["series"] is None for r in act_run["records"])
     failed_first = [r for r in act_run["records"] if r["kind"] == "challenge" and r["attempt"] == 1]
