@@ -126,11 +126,13 @@ class HypothesisTable(nn.Module):
 
 
 def normalised_relevance(alphas: Tensor, active: Tensor) -> Tensor:
-    """r_i = alpha_i / max_j alpha_j over active skills (the dominant skill has r = 1); 0 for inactive ones.
+    """r_i = alpha_i / max_j alpha_j over every skill (the dominant skill has r = 1); 0 for pruned skills.
 
-    alphas: per-skill relevance (the size of each skill's prompt contribution, non-negative)."""
-    masked = alphas.abs() * active.to(alphas)
-    return masked / masked.amax(-1, keepdim=True).clamp_min(1e-8)
+    alphas: per-skill relevance (the size of each skill's prompt contribution, non-negative). The scale is the
+    pool's, pruned skills included: retiring the skill a task relied on must not promote the skills that
+    barely touch that task's prompt to candidates, which would then be blamed for its failures in turn."""
+    scale = alphas.abs().amax(-1, keepdim=True).clamp_min(1e-8)
+    return alphas.abs() * active.to(alphas) / scale
 
 
 def culprit_skill(alphas: Tensor, last_k: int) -> int:

@@ -10,6 +10,8 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from .attribution import normalised_relevance
+
 
 class KvmStepTelemetry:
     """One KVM assessment. Tensors a closed gate leaves at their defaults (energy NaN, v = 1, skill weight 1, not
@@ -91,9 +93,8 @@ class KvmStepTelemetry:
     # Derived values are computed on access, so that the control loop only pays for what a caller reads.
     @property
     def relevance(self) -> Tensor:
-        """[B, S] normalised relevance |alpha_i| / max_j |alpha_j| over active skills."""
-        masked = self.alpha.abs() * self.active.to(self.alpha)
-        return masked / masked.amax(-1, keepdim=True).clamp_min(1e-8)
+        """[B, S] normalised relevance (see `attribution.normalised_relevance`)."""
+        return normalised_relevance(self.alpha, self.active)
 
     @property
     def candidate(self) -> Tensor:

@@ -65,6 +65,9 @@ def test_culprit_relevance_and_knowledge_gap() -> None:
     r = normalised_relevance(alphas, active)
     torch.testing.assert_close(r[0], torch.tensor([1.0, 0.5, 0.0]))
     torch.testing.assert_close(r[1], torch.tensor([1 / 3, 1.0, 0.0]))
+    # pruning the dominant skill leaves the others' relevance where it was: they do not become candidates
+    pruned_0 = normalised_relevance(alphas, torch.tensor([False, True, True]))
+    torch.testing.assert_close(pruned_0[0], torch.tensor([0.0, 0.5, 0.25]))
     assert knowledge_gap(r[1:], culprit=1, active=active, gap_alpha=0.5)  # alternative 0 stays at 1/3
     assert not knowledge_gap(r[:1], culprit=1, active=active, gap_alpha=0.5)  # alternative 0 is strong there
     assert knowledge_gap(r, culprit=0, active=torch.tensor([True, False, False]), gap_alpha=0.5)  # no alternative
