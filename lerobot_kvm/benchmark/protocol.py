@@ -210,6 +210,19 @@ def skill_index(policy: Any, scenario: str, skill: str) -> int | None:
     return names.index(name) if name in names else None
 
 
+def uncovered_scenarios(sequence: SequenceConfig, scenarios: Sequence[str]) -> list[str]:
+    """Benchmark scenarios whose prior skill the pool never learned as the challenge asks for it: the prior
+    expert on the prior variant under the variant's own instruction (in a stage or in pretraining). Their
+    challenge tests no obsolete knowledge, and the KVM context, which includes the instruction, is novel there
+    from the first step."""
+    learned = {
+        t.scenario
+        for t in [*sequence.tasks, *sequence.pretrain_tasks]
+        if (t.variant, t.skill, t.instruction) == ("prior", "prior", "variant")
+    }
+    return [s for s in scenarios if s not in learned]
+
+
 def _from_step(demo: dict[str, Any], start: int) -> dict[str, Any]:
     return {k: (v[start:] if isinstance(v, torch.Tensor | list) else v) for k, v in demo.items()}
 
@@ -437,6 +450,7 @@ class Benchmark:
                 "sequence": self.sequence.name,
                 "checkpoints": {k: str(v) for k, v in checkpoints.items()},
                 "continual_metrics": {m: r["metrics"] for m, r in pool_results["methods"].items()},
+                "uncovered_scenarios": uncovered_scenarios(self.sequence, cfg.scenarios),
             },
             "methods": methods,
             "overhead": overhead,

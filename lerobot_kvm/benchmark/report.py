@@ -111,6 +111,17 @@ def pool_table(results: dict[str, Any]) -> list[str]:
     return _table(["method", "A_N (%)", "F_N (pp)", "FWT (%)", "NBT (pp)", "AUC (%)"], rows)
 
 
+def coverage_lines(uncovered: list[str]) -> list[str]:
+    """A warning when some challenges meet no obsolete knowledge (see `protocol.uncovered_scenarios`)."""
+    if not uncovered:
+        return []
+    return [
+        f"**Pool coverage:** the pool never learned the prior skill of {', '.join(uncovered)} under the variant's own "
+        "instruction, so those challenges test no obsolete knowledge (and the KVM's context is novel there).",
+        "",
+    ]
+
+
 def markdown(results: dict[str, Any], plots: list[Path]) -> str:
     cfg = results["config"]
     lines = [
@@ -120,6 +131,7 @@ def markdown(results: dict[str, Any], plots: list[Path]) -> str:
         f"failed trace, one corrective demonstration and {cfg['feedback_steps']} gradient steps. "
         f"This invocation's wall time {results['wall_time_s'] / 60:.1f} min (finished runs are reused).",
         "",
+        *coverage_lines(results["pool"].get("uncovered_scenarios", [])),
         "## Success per category and pass (Table 1/9)",
         "",
         *category_table(results),

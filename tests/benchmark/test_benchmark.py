@@ -6,7 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_kvm.benchmark.protocol import BenchmarkConfig, episode_fields, episode_seed
+from lerobot_kvm.benchmark.continual import SequenceConfig
+from lerobot_kvm.benchmark.protocol import BenchmarkConfig, episode_fields, episode_seed, uncovered_scenarios
+from lerobot_kvm.benchmark.report import coverage_lines
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
@@ -38,6 +40,16 @@ def test_episode_seeds_are_distinct_per_role_and_far_from_recording_and_cl_seeds
     seeds = {episode_seed(0, r, p, i, o) for r in range(5) for p in (1, 2, 3) for i in range(18) for o in range(4)}
     assert len(seeds) == 5 * 3 * 18 * 4
     assert min(seeds) > 100_000 + 10_000
+
+
+def test_scenarios_whose_prior_skill_the_pool_never_learned_are_flagged():
+    default = SequenceConfig.from_json(CONFIGS / "cl_default.json")
+    # chip_bag is learned from its safe skill under the skill's instruction; potato's prior skill is pretraining's
+    scenarios = ["egg_vs_stone", "chip_bag", "potato", "ice_cream"]
+    assert uncovered_scenarios(default, scenarios) == ["chip_bag", "ice_cream"]
+    quick = BenchmarkConfig.from_json(CONFIGS / "benchmark_quick.json")
+    assert uncovered_scenarios(SequenceConfig.from_json(CONFIGS / "cl_quick.json"), quick.scenarios) == []
+    assert coverage_lines([]) == [] and "chip_bag" in coverage_lines(["chip_bag"])[0]
 
 
 def test_episode_fields_without_a_validity_trace():
