@@ -131,8 +131,8 @@ def normalised_relevance(alphas: Tensor, active: Tensor) -> Tensor:
     alphas: per-skill relevance (the size of each skill's prompt contribution, non-negative). The scale is the
     pool's, pruned skills included: retiring the skill a task relied on must not promote the skills that
     barely touch that task's prompt to candidates, which would then be blamed for its failures in turn."""
-    scale = alphas.abs().amax(-1, keepdim=True).clamp_min(1e-8)
-    return alphas.abs() * active.to(alphas) / scale
+    mass = alphas.abs()
+    return mass * active.to(alphas) / mass.amax(-1, keepdim=True).clamp_min(1e-8)
 
 
 def culprit_skill(alphas: Tensor, last_k: int) -> int:

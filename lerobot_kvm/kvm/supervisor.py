@@ -386,17 +386,17 @@ class KnowledgeValidityModule(nn.Module):
                     parts_c.append(safe_new_c[i])
                     parts_s.append(safe_new_s[i])
                     parts_r.append(torch.zeros(half, dtype=torch.bool, device=safe_new_c.device))
-                for buffer in (self.safe_offline, self.safe_online):
+                replay = half // 2 if len(safe_new_c) else half
+                for buffer, k in (
+                    (self.safe_offline, replay),
+                    (self.safe_online, replay),
+                    (self.safe_hard, cfg.hard_safe_replay),
+                ):
                     if len(buffer):
-                        c, s, f = self._replay(buffer, half // 2 if len(safe_new_c) else half)
+                        c, s, f = self._replay(buffer, k)
                         parts_c.append(c)
                         parts_s.append(s)
                         parts_r.append((f & ROUTINE) > 0)
-                if len(self.safe_hard):
-                    c, s, f = self._replay(self.safe_hard, cfg.hard_safe_replay)
-                    parts_c.append(c)
-                    parts_s.append(s)
-                    parts_r.append((f & ROUTINE) > 0)
                 if not parts_c:
                     break
                 safe_c, safe_s, routine = torch.cat(parts_c), torch.cat(parts_s), torch.cat(parts_r)
