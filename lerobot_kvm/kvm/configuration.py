@@ -9,6 +9,7 @@ every field is reachable as `--policy.kvm.<field>=...` (draccus nested dataclass
 from dataclasses import dataclass, field
 
 RISK_MODELS = ("energy", "bce")
+GAP_INITS = ("culprit", "orthogonal")
 
 
 @dataclass
@@ -103,6 +104,13 @@ class KvmConfig:
     tau_high: float = 0.8  # ... and the intervention was necessary (normalised alpha_i > tau_high)
     similarity: float = 0.9  # cosine similarity of mu_c that makes a context "similar" to a hypothesis's
     gap_alpha: float = 0.5  # knowledge gap: every alternative's normalised relevance stays below this
+    # A failure that comes with a corrective demonstration tests the gap at once (no successful intervention
+    # needed): with every alternative weak, suppressing the culprit would leave no strategy at all.
+    gap_on_failure: bool = True
+    # How a knowledge-gap skill starts: "culprit" copies the components, keys and attention of the skill it
+    # corrects (the safe strategy is mostly a variation of the obsolete one, and the backbone knows that prompt);
+    # "orthogonal" keeps CODA's Gram-Schmidt initialisation of a new task.
+    gap_init: str = "culprit"
     focused_steps: int = 50  # gradient steps on a newly created skill only
     focused_lr: float = 3e-3
     focused_key_weight: float = 1.0  # pulls the new skill's CODA keys towards the seed queries
@@ -121,6 +129,8 @@ class KvmConfig:
     def __post_init__(self) -> None:
         if self.risk_model not in RISK_MODELS:
             raise ValueError(f"`kvm.risk_model` must be one of {RISK_MODELS}, got {self.risk_model!r}")
+        if self.gap_init not in GAP_INITS:
+            raise ValueError(f"`kvm.gap_init` must be one of {GAP_INITS}, got {self.gap_init!r}")
         positive_ints = {
             "latent_dim": self.latent_dim,
             "context_window": self.context_window,

@@ -14,6 +14,11 @@ relevance alpha_i is the size ||c_i|| of its contribution, see `CodaPromptPool.s
   exactly at v = 1, and at most 1 / eps).
 
 Either way, at v = 1 the prompt is the CODA prompt bit for bit.
+
+A skill the KVM created for a knowledge gap *corrects* another skill: it is out of force where the gate is closed
+(inside the safe experience the corrected skill still holds) and, where the gate is open, valid at least as much as
+the skill it corrects is not (`correction_validity`): the correction takes over exactly where the obsolete
+knowledge is suppressed, however narrow the few seed contexts it was learned from.
 """
 
 import torch
@@ -29,3 +34,12 @@ def fuse_weights(v: Tensor, alphas: Tensor, renormalize: bool = False, eps: floa
     kept = (v * mass).sum(-1, keepdim=True)
     factor = torch.where(total > 0, total / torch.maximum(kept, eps * total), torch.ones_like(total))
     return v * factor
+
+
+def correction_validity(v: Tensor, corrections: tuple[Tensor, Tensor] | None) -> Tensor:
+    """v [B, S] with each correcting skill i raised to max(v_i, 1 - v_target(i)); `corrections` = (mask [S] bool,
+    target [S] index) from `CodaPromptPool.corrections` (None: no correcting skill, v unchanged)."""
+    if corrections is None:
+        return v
+    mask, target = corrections
+    return torch.where(mask.unsqueeze(0), torch.maximum(v, 1 - v[:, target]), v)

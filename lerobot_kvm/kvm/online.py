@@ -12,11 +12,16 @@ after an attempt:
   alternative) and, where its contexts are unfamiliar, more negatives for the culprit. Then a fixed budget of
   gradient steps updates the KVM, replaying the safe memory so that what was safe stays safe. This first update
   is what lowers v(culprit, failure context) already on the next attempt; the hypothesis governs confirmation.
+  With a demonstration, the knowledge gap is tested at once (`kvm.gap_on_failure`): if every alternative to
+  the culprit is weak in the failure context, suppression alone would leave no strategy, so a new *gated* skill
+  that corrects the culprit (`fusion.correction_validity`) is begun and seeded from the demonstration: KVM
+  positives from the demonstrated and the failed contexts, then the feedback's gradient budget as focused steps
+  on its parameters only. Later failures of the same hypothesis refine it while it is the skill being learned.
 * success: safe samples for the dominant skill (routine ones, without intervention, also feed the gate window
   and E_c's reconstruction). Interventions (a candidate suppressed, v_i < tau_v) in a context similar to an open
   hypothesis of that skill count for it; an intervention confirms it when the counter exceeds N_p and the skill
   was necessary (normalised alpha_i > tau_high). Confirmation makes the hypothesis's negatives permanent and, if
-  every alternative stayed weak (knowledge gap), creates a new skill seeded from this successful interaction
+  every alternative stayed weak (knowledge gap), creates a new gated skill seeded from this successful interaction
   (and the demonstration, if any): new CODA components (Gram-Schmidt, `policy.begin_new_skill`), KVM positives
   for it, and a few focused gradient steps on the new skill's parameters only.
 """
@@ -147,7 +152,7 @@ def focused_finetune(
     cfg = policy.config.kvm
     with torch.no_grad():
         c_raw = policy.kvm.raw_context(frames[policy.config.context_key], queries)
-        v = policy.kvm.score(c_raw, policy.n_skills, active)
+        v = policy.kvm.score(c_raw, policy.n_skills, active, corrections=pool.corrections())
     grad_flags = [p.requires_grad for p in policy.backbone.parameters()]
     was_training = policy.training
     policy.backbone.requires_grad_(False)
@@ -302,18 +307,27 @@ def apply_feedback(
         safe_c: list[Tensor] = []
         safe_s: list[Tensor] = []
         demo_skill = None
+        gap = None
         if demonstration is not None:
             frames = _demo_frames(policy, demonstration)
+            if cfg.gap_on_failure and steps:
+                gap = _gap_skill(policy, hypothesis_id, culprit, relevance[context], active, task_name)
+                active = policy.kvm_active_skills()
             with torch.no_grad():
                 d_query = policy.encode_query(frames["task"])
                 d_raw = kvm.raw_context(frames[policy.config.context_key].to(device), d_query)
                 _, d_sigma2, _ = kvm.encode(d_raw)
                 d_rel = normalised_relevance(policy.pool.skill_relevance(d_query), active)
-            demo_skill = _demo_skill(policy, demonstration.get("skill"), d_rel, culprit, active)
+            if gap is not None:
+                demo_skill = gap["index"]
+            else:
+                demo_skill = _demo_skill(policy, demonstration.get("skill"), d_rel, culprit, active)
             if demo_skill is not None:
-                skills = torch.full((len(d_raw),), demo_skill)
-                kvm.add_safe(d_raw, skills, routine=False, demo=True)
-                safe_c.append(d_raw)
+                # a gap skill is meant for the contexts the culprit failed in as well as the demonstrated ones
+                seen = torch.cat([d_raw, c_raw]) if gap is not None else d_raw
+                skills = torch.full((len(seen),), demo_skill)
+                kvm.add_safe(seen, skills, routine=False, demo=True)
+                safe_c.append(seen)
                 safe_s.append(skills.to(device))
             unfamiliar = (d_sigma2 > tau) & ~kvm.known_safe(d_raw, culprit)
             if bool(unfamiliar.any()):
@@ -323,6 +337,9 @@ def apply_feedback(
         new_fail = (fails, torch.full((len(fails),), culprit, device=device))
         new_safe = (torch.cat(safe_c), torch.cat(safe_s)) if safe_c else (c_raw[:0], dominant[:0])
         metrics = kvm.train_online(steps, active, new_safe, new_fail) if steps else {}
+        if gap is not None:
+            gap |= _focus(policy, gap["index"], frames, d_query, steps)  # the budget the baselines fine-tune with
+            report["new_skill"] = gap
         report.update(
             culprit=culprit,
             hypothesis=kvm.hypotheses.info(hypothesis_id),
@@ -385,6 +402,61 @@ def _demo_skill(
     return int(mean.argmax())
 
 
+def _new_skill_name(policy: "CodaKvmPolicy") -> str:
+    names = {s.name for s in policy.skills}
+    n = policy.n_skills
+    while f"kvm_skill_{n}" in names:
+        n += 1
+    return f"kvm_skill_{n}"
+
+
+def _begin_gap_skill(policy: "CodaKvmPolicy", hypothesis_id: int, culprit: int, task: str) -> int:
+    """A new skill that corrects the culprit (see `fusion.correction_validity`): out of force where the gate is
+    closed, so the contexts where the culprit is still right (inside the safe experience) keep their prompt.
+    It starts as a copy of the culprit (`kvm.gap_init`)."""
+    name = _new_skill_name(policy)
+    description = f"created by the KVM: '{policy.skills[culprit].name}' risky on '{task}'"
+    index = policy.begin_new_skill(name, description, corrects=culprit)
+    if policy.config.kvm.gap_init == "culprit":
+        policy.pool.copy_skill(culprit, index)
+    policy.kvm.hypotheses.mark_gap(hypothesis_id, index)
+    return index
+
+
+def _gap_skill(
+    policy: "CodaKvmPolicy", hypothesis_id: int, culprit: int, relevance: Tensor, active: Tensor, task: str
+) -> dict[str, Any] | None:
+    """The skill a failure's corrective demonstration seeds. A gap skill already made for this hypothesis, or
+    a gap skill blamed itself, is refined while it is still the skill being learned (never replaced by another).
+    Otherwise a new gated skill when every alternative to the culprit is weak in the failure context (the
+    knowledge gap) and the pool has room. None: the demonstration teaches an existing alternative."""
+    made = policy.kvm.hypotheses.info(hypothesis_id)["new_skill"]
+    target = made if made >= 0 else (culprit if policy.skills[culprit].gated else -1)
+    if target >= 0:
+        if target != policy.n_skills - 1:
+            return None
+        return {"created": False, "index": target, "name": policy.skills[target].name}
+    if not len(relevance) or not knowledge_gap(relevance, culprit, active, policy.config.kvm.gap_alpha):
+        return None
+    if policy.n_skills >= policy.config.n_tasks:
+        return None
+    index = _begin_gap_skill(policy, hypothesis_id, culprit, task)
+    return {"created": True, "index": index, "name": policy.skills[index].name}
+
+
+def _focus(policy: "CodaKvmPolicy", index: int, frames: dict[str, Any], query: Tensor, steps: int) -> dict[str, Any]:
+    """`steps` of focused fine-tuning of a new skill on its seed frames; its keys are pushed away from every
+    other query the KVM has seen safe."""
+    cfg = policy.config.kvm
+    kvm = policy.kvm
+    known = kvm.safe_offline.data[kvm.safe_offline.filled()][:, kvm.encoder.sensed_dim :] / kvm.encoder.query_scale
+    other = known[(F.normalize(known, dim=-1) @ query.T).amax(-1) < 0.999] if len(known) else known
+    focused = focused_finetune(
+        policy, frames, index, steps, cfg.focused_lr, cfg.focused_key_weight, torch.unique(other, dim=0)
+    )
+    return {"seed_frames": frames[ACTION].shape[0], "seed_tasks": sorted(set(frames["task"])), **focused}
+
+
 def _create_skill(
     policy: "CodaKvmPolicy",
     hypothesis_id: int,
@@ -394,7 +466,8 @@ def _create_skill(
     demonstration: dict[str, Any] | None,
     steps: int,
 ) -> dict[str, Any] | None:
-    """Knowledge gap: a new skill seeded from the successful interaction (and the demonstration)."""
+    """Knowledge gap after a confirmation: a new gated skill seeded from the successful interaction (and the
+    demonstration)."""
     cfg = policy.config.kvm
     kvm = policy.kvm
     if policy.n_skills >= policy.config.n_tasks:
@@ -405,13 +478,7 @@ def _create_skill(
     if not parts:
         return {"created": False, "reason": "no seed observations (trace_observations=False and no demonstration)"}
     frames = _cat_frames(parts)
-    names = {s.name for s in policy.skills}
-    n = policy.n_skills
-    while f"kvm_skill_{n}" in names:
-        n += 1
-    name = f"kvm_skill_{n}"
-    index = policy.begin_new_skill(name, f"created by the KVM: '{policy.skills[culprit].name}' risky on '{task}'")
-    kvm.hypotheses.mark_gap(hypothesis_id, index)
+    index = _begin_gap_skill(policy, hypothesis_id, culprit, task)
     device = policy.query_fingerprint.device
     with torch.no_grad():
         query = policy.encode_query(frames["task"])
@@ -424,18 +491,10 @@ def _create_skill(
     metrics = kvm.train_online(
         max(steps, cfg.feedback_steps), active, (seed, skills.to(device)), (fails, torch.full((len(fails),), culprit))
     )
-    seed_queries = set(frames["task"])
-    known = kvm.safe_offline.data[kvm.safe_offline.filled()][:, kvm.encoder.sensed_dim :] / kvm.encoder.query_scale
-    other = known[(F.normalize(known, dim=-1) @ query.T).amax(-1) < 0.999] if len(known) else known
-    focused = focused_finetune(
-        policy, frames, index, cfg.focused_steps, cfg.focused_lr, cfg.focused_key_weight, torch.unique(other, dim=0)
-    )
     return {
         "created": True,
         "index": index,
-        "name": name,
-        "seed_frames": len(seed),
-        "seed_tasks": sorted(seed_queries),
+        "name": policy.skills[index].name,
         "kvm_metrics": metrics,
-        **focused,
+        **_focus(policy, index, frames, query, cfg.focused_steps),
     }

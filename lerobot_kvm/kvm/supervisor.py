@@ -18,7 +18,7 @@ from .attribution import HypothesisTable
 from .configuration import KvmConfig
 from .context_encoder import ContextEncoder
 from .energy import EnergyModel, JointFeature, RiskClassifier, validity
-from .fusion import fuse_weights
+from .fusion import correction_validity, fuse_weights
 from .gate import SmartGate
 from .losses import bce_loss, contrastive_loss, energy_loss, total_loss
 from .memory import DEMO, PERMANENT, ROUTINE, SYNTHETIC, EpisodeLabels, SampleBuffer
@@ -125,15 +125,24 @@ class KnowledgeValidityModule(nn.Module):
         return torch.where(ok, v, torch.zeros_like(v))
 
     @torch.no_grad()
-    def score(self, c_raw: Tensor, n_skills: int, active: Tensor, use_gate: bool = True) -> Tensor:
-        """v [N, S] as `assess` would give it for these contexts (gate, fail-safe, pruning), without fusion."""
+    def score(
+        self,
+        c_raw: Tensor,
+        n_skills: int,
+        active: Tensor,
+        use_gate: bool = True,
+        corrections: tuple[Tensor, Tensor] | None = None,
+    ) -> Tensor:
+        """v [N, S] as `assess` would give it for these contexts (gate, fail-safe, pruning, corrections), without
+        fusion (a correction's absence where the gate is closed is a fusion weight, not a validity)."""
         mu, sigma2, valid = self.encode(c_raw)
         energy = self.skill_energies(mu, n_skills)
         v = validity(energy, self.config.gamma, self.config.l0)
         if use_gate and self.config.smart_gate:
             v = torch.where((sigma2 > self.threshold()).unsqueeze(-1), v, torch.ones_like(v))
         ok = valid.unsqueeze(-1) & torch.isfinite(energy) & active.unsqueeze(0)
-        return torch.where(ok, v, torch.zeros_like(v))
+        v = torch.where(ok, v, torch.zeros_like(v))
+        return v if corrections is None else torch.where(ok, correction_validity(v, corrections), 0.0)
 
     def threshold(self) -> Tensor:
         return self.gate.threshold(self.encoder, self.gate_memory)
@@ -145,13 +154,15 @@ class KnowledgeValidityModule(nn.Module):
         alphas: Tensor | Callable[[], Tensor],
         active: Tensor,
         all_active: bool | None = None,
+        corrections: tuple[Tensor, Tensor] | None = None,
     ) -> tuple[Tensor | None, KvmStepTelemetry]:
         """Skill weights for the pool and the step's telemetry (Algorithm 1, lines 7-21).
 
         sensed [B, C] normalized context, query [B, D_q], alphas [B, S] per-skill relevance (or a function giving
-        it), active [S] bool (not pruned). The weights are None when nothing is re-weighted (the gate closed
-        everywhere, every context valid, no skill pruned): the pool then computes the plain CODA prompt, and this
-        gate-closed path costs E_c and the gate test only.
+        it), active [S] bool (not pruned), corrections: knowledge-gap skills (`CodaPromptPool.corrections`).
+        The weights are None when nothing is re-weighted (the gate closed everywhere, every context valid, every
+        skill in force): the pool then computes the plain CODA prompt. The gate-closed path costs E_c and the
+        gate test only.
         """
         cfg = self.config
         c_raw = self.raw_context(sensed, query)
@@ -183,8 +194,12 @@ class KnowledgeValidityModule(nn.Module):
             tau_v=cfg.tau_v,
             candidate_min_alpha=cfg.candidate_min_alpha,
         )
-        if cfg.force_validity is None and all_active and not bool(gate.any()):
-            return None, KvmStepTelemetry(alpha=alphas, **common)  # gate closed: v = 1, plain CODA prompt
+        if cfg.force_validity is None and not bool(gate.any()):  # gate closed: v = 1 for every active skill
+            if all_active and corrections is None:
+                return None, KvmStepTelemetry(alpha=alphas, **common)  # the plain CODA prompt
+            v = active.to(sigma2.dtype).expand(sigma2.shape[0], -1)
+            weights = v if corrections is None else v.masked_fill(corrections[0], 0.0)
+            return weights, KvmStepTelemetry(alpha=alphas, validity=v, skill_weight=weights, **common)
         valid = torch.isfinite(sigma2)
         energy = sigma2.new_full((sigma2.shape[0], active.shape[0]), float("nan"))
         if cfg.force_validity is not None:
@@ -196,12 +211,16 @@ class KnowledgeValidityModule(nn.Module):
             v = torch.where(gate.unsqueeze(-1), validity(e, cfg.gamma, cfg.l0), torch.ones_like(e))
             invalid = ~valid.unsqueeze(-1) | (gate.unsqueeze(-1) & ~torch.isfinite(e))
         v = torch.where(invalid | ~active.unsqueeze(0), torch.zeros_like(v), v)
+        if corrections is not None:
+            v = torch.where(invalid | ~active.unsqueeze(0), 0.0, correction_validity(v, corrections))
         # The default fusion scales each skill by v alone, so the relevance stays lazy (telemetry may ask for it).
         if cfg.fusion_renormalize:
             alphas = alphas() if callable(alphas) else alphas
             weights = fuse_weights(v, alphas, True, cfg.fusion_eps)
         else:
             weights = v
+        if corrections is not None:
+            weights = weights.masked_fill(corrections[0].unsqueeze(0) & ~gate.unsqueeze(-1), 0.0)
         telemetry = KvmStepTelemetry(
             alpha=alphas, energy=energy, validity=v, skill_weight=weights, invalid=invalid, **common
         )

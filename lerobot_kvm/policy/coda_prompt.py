@@ -32,9 +32,18 @@ SKILL_TABLE_BYTES_PER_TASK = 1024
 
 @dataclass(frozen=True)
 class Skill:
+    """`corrects`: set on a skill the KVM created for a knowledge gap, the index of the skill it corrects. Such a
+    skill is a correction for contexts outside the safe experience, not a replacement of what holds inside it:
+    the KVM keeps it out of force where its gate is closed (see `kvm.fusion.correction_validity`)."""
+
     index: int
     name: str
     description: str
+    corrects: int | None = None
+
+    @property
+    def gated(self) -> bool:
+        return self.corrects is not None
 
 
 class _TaskSlice(nn.Module):
@@ -106,6 +115,7 @@ class CodaPromptPool(nn.Module):
         self.register_buffer("skill_queries", torch.zeros(n_tasks, query_dim))
         self.register_buffer("skill_query_counts", torch.zeros(n_tasks, dtype=torch.int64))
         self.register_load_state_dict_post_hook(CodaPromptPool._after_load)
+        self._corrections: tuple[int, torch.device, tuple[Tensor, Tensor] | None] | None = None
         self.refresh_trainable()
 
     # ----------------------------------------------------------------- bookkeeping
@@ -118,7 +128,21 @@ class CodaPromptPool(nn.Module):
     def skills(self) -> list[Skill]:
         raw = bytes(self.skill_table.cpu().numpy()).rstrip(b"\x00")
         entries = json.loads(raw.decode("utf-8")) if raw else []
-        return [Skill(int(e["index"]), str(e["name"]), str(e["description"])) for e in entries]
+        return [Skill(int(e["index"]), str(e["name"]), str(e["description"]), e.get("corrects")) for e in entries]
+
+    def corrections(self) -> tuple[Tensor, Tensor] | None:
+        """([n_skills] bool: the skill corrects another, [n_skills] index of the skill it corrects (itself
+        otherwise)), or None when no skill is a correction. Cached: it is read on every control step."""
+        device = self.task_count.device
+        if self._corrections is None or self._corrections[:2] != (self.n_skills, device):
+            skills = self.skills
+            value = None
+            if any(s.gated for s in skills):
+                mask = torch.tensor([s.gated for s in skills], dtype=torch.bool, device=device)
+                target = torch.tensor([s.index if s.corrects is None else s.corrects for s in skills], device=device)
+                value = (mask, target)
+            self._corrections = (self.n_skills, device, value)
+        return self._corrections[2]
 
     def _write_skill_table(self, skills: list[Skill]) -> None:
         raw = json.dumps([asdict(s) for s in skills], ensure_ascii=False).encode("utf-8")
@@ -130,10 +154,12 @@ class CodaPromptPool(nn.Module):
         table = torch.zeros_like(self.skill_table)
         table[: len(raw)] = torch.frombuffer(bytearray(raw), dtype=torch.uint8)
         self.skill_table.copy_(table)
+        self._corrections = None
 
     @staticmethod
     def _after_load(module: "CodaPromptPool", _incompatible_keys: object) -> None:
         module.refresh_trainable()  # the loaded task counter decides which slice learns
+        module._corrections = None
 
     def refresh_trainable(self) -> None:
         """Only the current task's slice learns; earlier slices are frozen, later ones are zero and frozen."""
@@ -146,7 +172,7 @@ class CodaPromptPool(nn.Module):
                     p.grad = None
 
     @torch.no_grad()
-    def begin_skill(self, name: str, description: str = "") -> int:
+    def begin_skill(self, name: str, description: str = "", corrects: int | None = None) -> int:
         """Start the next task: Gram-Schmidt init of its rows against all earlier rows; returns its index."""
         t = self.n_skills
         if t >= self.n_tasks:
@@ -155,6 +181,8 @@ class CodaPromptPool(nn.Module):
             raise ValueError(f"skill name must be non-empty, got {name!r}")
         if any(s.name == name for s in self.skills):
             raise ValueError(f"a skill named {name!r} already exists")
+        if corrects is not None and not 0 <= corrects < t:
+            raise ValueError(f"corrects must name an earlier skill in [0, {t}), got {corrects}")
         new = self.tasks[t]
         for attr in ("prompts", "keys", "attn"):
             for layer in range(self.n_layers):
@@ -163,10 +191,18 @@ class CodaPromptPool(nn.Module):
                 old = torch.cat([target[layer][:0], *old_slices]).flatten(1)
                 rows = _orthonormal_extension(old, self.per_task)
                 target[layer].copy_(rows.reshape(target[layer].shape).to(target.dtype))
-        self._write_skill_table([*self.skills, Skill(t, name, description)])
+        self._write_skill_table([*self.skills, Skill(t, name, description, corrects)])
         self.task_count.fill_(t + 1)
         self.refresh_trainable()
         return t
+
+    @torch.no_grad()
+    def copy_skill(self, source: int, target: int) -> None:
+        """Start the skill being learned (`target`) as a copy of skill `source`'s components, keys and attention."""
+        if target != self.n_skills - 1 or not 0 <= source < target:
+            raise ValueError(f"can only copy an earlier skill into the one being learned, got {source} -> {target}")
+        for attr in ("prompts", "keys", "attn"):
+            getattr(self.tasks[target], attr).copy_(getattr(self.tasks[source], attr))
 
     # ----------------------------------------------------------------- CODA computation
     def _visible(self, attr: str, n_skills: int | None = None) -> Tensor:

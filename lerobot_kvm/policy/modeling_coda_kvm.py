@@ -105,9 +105,10 @@ class CodaKvmPolicy(PreTrainedPolicy):
     def n_skills(self) -> int:
         return self.pool.n_skills
 
-    def begin_new_skill(self, name: str, description: str = "") -> int:
-        """Freeze the current skill and start learning a new one; rebuild the optimizer afterwards."""
-        index = self.pool.begin_skill(name, description)
+    def begin_new_skill(self, name: str, description: str = "", corrects: int | None = None) -> int:
+        """Freeze the current skill and start learning a new one; rebuild the optimizer afterwards.
+        `corrects`: the skill a knowledge-gap skill corrects (see `kvm.fusion.correction_validity`)."""
+        index = self.pool.begin_skill(name, description, corrects)
         self.reset()
         return index
 
@@ -392,6 +393,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
             lambda: self.pool.relevance_from_alphas(alphas),  # per-skill relevance, only computed when needed
             self.kvm.metabolism.active(n),
             self.kvm.metabolism.all_active(n),
+            self.pool.corrections(),
         )
         return alphas, weights, telemetry
 

@@ -13,6 +13,7 @@ from lerobot_kvm.kvm.attribution import (
     normalised_relevance,
 )
 from lerobot_kvm.kvm.memory import PERMANENT
+from lerobot_kvm.kvm.online import make_demonstration
 
 EGG = "pick up the egg"
 
@@ -121,6 +122,50 @@ def test_confirmed_gap_creates_a_new_skill_trained_alone(make_policy, attempt) -
     for k, v in policy.pool.tasks[0].state_dict().items():
         assert torch.equal(v, old_skill[k]), k
     assert "focused_l1" in new and new["seed_frames"] == 6
+
+
+def _demonstration(policy, make_batch, steps: int = 5) -> dict:
+    per_step = []
+    for t in range(steps):
+        b = make_batch(policy.config, batch_size=1, task=EGG, seed=50 + t)
+        b["action"] = b["action"][:, 0]
+        per_step.append(b)
+    return make_demonstration(per_step)
+
+
+def test_a_failure_without_a_strong_alternative_seeds_a_correcting_skill_from_its_demonstration(
+    make_policy, make_batch, attempt
+) -> None:
+    policy = make_policy()  # one skill: nothing else could take over once it is suppressed
+    backbone = {k: v.clone() for k, v in policy.backbone.state_dict().items()}
+    old_skill = {k: v.clone() for k, v in policy.pool.tasks[0].state_dict().items()}
+    demo = _demonstration(policy, make_batch)
+    report = policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6), demonstration=demo, gradient_steps=2)
+    new = report["new_skill"]
+    assert new["created"] and new["index"] == 1 and policy.n_skills == 2 and policy.skills[1].gated
+    assert report["culprit"] == 0 and report["demo_skill"] == 1 and policy.skills[1].corrects == 0
+    assert report["positives_added"] == 5 + 6  # the demonstrated contexts and those the culprit failed in
+    assert report["hypothesis"]["gap"] and report["hypothesis"]["new_skill"] == 1
+    assert new["seed_frames"] == 5 and "focused_l1" in new
+    for k, v in policy.backbone.state_dict().items():
+        assert torch.equal(v, backbone[k]), k
+    for k, v in policy.pool.tasks[0].state_dict().items():
+        assert torch.equal(v, old_skill[k]), k
+    # a later failure, blamed on the old skill or on the new one, refines the skill still being learned
+    again = policy.kvm_feedback("failure", attempt(policy, EGG, steps=6), demonstration=demo, gradient_steps=2)
+    assert again["new_skill"]["created"] is False and again["new_skill"]["index"] == 1 and policy.n_skills == 2
+
+
+@pytest.mark.parametrize("setting", [{"gap_on_failure": False}, {"gap_alpha": 0.0}])
+def test_no_skill_from_a_failure_when_the_gap_test_is_off_or_an_alternative_is_strong(
+    make_policy, make_batch, make_kvm_config, attempt, setting
+) -> None:
+    policy = make_policy(kvm=make_kvm_config(**setting))
+    policy.begin_new_skill("gentle_grasp")
+    demo = _demonstration(policy, make_batch)
+    report = policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6), demonstration=demo, gradient_steps=2)
+    assert report["new_skill"] is None and policy.n_skills == 2 and report["demo_skill"] in (0, 1)
+    assert report["demo_skill"] != report["culprit"]
 
 
 def test_a_failure_with_the_culprit_suppressed_restarts_its_persistence(make_policy, attempt) -> None:

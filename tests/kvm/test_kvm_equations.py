@@ -8,7 +8,7 @@ from torch import nn
 
 from lerobot_kvm.kvm.context_encoder import ContextEncoder
 from lerobot_kvm.kvm.energy import EnergyModel, RiskClassifier, validity
-from lerobot_kvm.kvm.fusion import fuse_weights
+from lerobot_kvm.kvm.fusion import correction_validity, fuse_weights
 from lerobot_kvm.kvm.gate import SmartGate, adaptive_threshold
 from lerobot_kvm.kvm.losses import bce_loss, contrastive_loss, energy_loss, total_loss
 from lerobot_kvm.kvm.metabolism import SkillMetabolism, fcrnc, srnc
@@ -121,6 +121,14 @@ def test_eq3_fusion_is_identity_at_v_one_and_renormalises_suppression() -> None:
     kept = 0.5 * 0.5 + 1.5 + 0.25 * 2.0
     torch.testing.assert_close(w, torch.tensor([[0.5, 1.0, 0.25]]) * 4.0 / kept)
     assert torch.equal(fuse_weights(torch.zeros(1, 3), alphas, renormalize=True), torch.zeros(1, 3))
+
+
+def test_a_correction_is_valid_at_least_where_the_skill_it_corrects_is_not() -> None:
+    v = torch.tensor([[0.02, 0.9, 0.1], [0.95, 0.3, 0.05]])
+    corrections = (torch.tensor([False, False, True]), torch.tensor([0, 1, 0]))  # skill 2 corrects skill 0
+    expected = torch.tensor([[0.02, 0.9, 0.98], [0.95, 0.3, 0.05]])
+    assert torch.allclose(correction_validity(v, corrections), expected)
+    assert correction_validity(v, None) is v
 
 
 def test_eq3_fused_prompt_is_the_weighted_sum_of_skill_contributions() -> None:

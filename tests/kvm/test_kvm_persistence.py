@@ -95,7 +95,8 @@ def test_every_piece_of_kvm_memory_survives_save_and_load(
         assert torch.equal(value, restored[key]), key
     assert loaded.config.kvm == policy.config.kvm and loaded.config.kvm.gate_k == 2.5
     assert loaded.kvm_summary() == policy.kvm_summary()
-    assert loaded.skills == policy.skills and loaded.kvm_active_skills().tolist() == [True, False]
+    assert loaded.skills == policy.skills and loaded.kvm_active_skills().tolist() == [True, False, True]
+    assert [s.gated for s in loaded.skills] == [False, False, True]  # the failure's knowledge-gap skill
     batch = make_batch(policy.config, task=EGG, with_action=False)
     assert torch.equal(loaded.predict_action_chunk(batch), policy.predict_action_chunk(batch))
     for name in ("sigma2", "tau", "gate", "energy", "validity", "skill_weight"):

@@ -63,6 +63,30 @@ def test_suppressing_a_skill_follows_eq3(make_policy, make_batch, make_kvm_confi
     assert torch.equal(policy.kvm_telemetry.skill_weight, torch.zeros(4, 2))  # every skill invalid: no prompt
 
 
+def test_a_correction_is_out_of_force_with_the_gate_closed_and_takes_over_where_its_skill_is_suppressed(
+    make_policy, make_batch
+) -> None:
+    policy = make_policy()
+    policy.begin_new_skill("kvm_fix", corrects=0)
+    policy.eval()
+    batch = make_batch(policy.config, with_action=False)
+    without_fix = torch.tensor([[1.0, 0.0]]).expand(4, 2)
+    policy.kvm.set_gate_override("closed")
+    closed = policy.predict_action_chunk(batch)
+    tele = policy.kvm_telemetry
+    assert torch.equal(tele.skill_weight, without_fix) and torch.equal(tele.validity, torch.ones(4, 2))
+    assert not tele.intervention.any()  # leaving an unassessed correction out is no suppression
+    assert torch.equal(closed, policy._predict(batch, without_fix))
+    assert not torch.equal(closed, policy._predict(batch, None))
+    policy.kvm.set_gate_override("open")
+    policy.predict_action_chunk(batch)
+    tele = policy.kvm_telemetry
+    raw = policy.kvm_validity(batch)
+    assert torch.equal(tele.validity[:, 0], raw[:, 0])
+    assert torch.equal(tele.validity[:, 1], torch.maximum(raw[:, 1], 1 - raw[:, 0]))
+    assert torch.equal(tele.skill_weight, tele.validity)
+
+
 def test_non_finite_context_or_energy_is_invalid_never_valid(make_policy, make_batch) -> None:
     policy = two_skill_policy(make_policy)
     batch = make_batch(policy.config)
@@ -235,6 +259,7 @@ def test_kvm_config_on_the_command_line_and_validation() -> None:
     assert defaults.encoder_hidden == [128, 128] and defaults.energy_hidden == [256, 256, 256]
     for bad, name in [
         ({"risk_model": "svm"}, "risk_model"),
+        ({"gap_init": "random"}, "gap_init"),
         ({"tau_v": 1.5}, "tau_v"),
         ({"gate_window": 0}, "gate_window"),
         ({"energy_margin": 30.0}, "energy_margin"),

@@ -127,6 +127,35 @@ def test_skill_table_and_counter_round_trip_through_state_dict() -> None:
     assert [p.requires_grad for t in fresh.tasks for p in t.parameters()] == [False] * 3 + [True] * 3 + [False] * 3
 
 
+def test_corrections_are_kept_in_the_skill_table_and_default_to_none() -> None:
+    pool = make_pool(1)
+    assert pool.corrections() is None  # no correcting skill: the plain CODA path stays available
+    with pytest.raises(ValueError, match="corrects"):
+        pool.begin_skill("fix", corrects=1)  # only an earlier skill can be corrected
+    pool.begin_skill("fix", "a knowledge-gap skill", corrects=0)
+    mask, target = pool.corrections()
+    assert mask.tolist() == [False, True] and target.tolist() == [0, 0]
+    fresh = CodaPromptPool(n_layers=2, pool_size=6, n_tasks=3, prompt_length=4, dim_model=8, query_dim=16)
+    fresh.load_state_dict(pool.state_dict())
+    assert fresh.skills[1] == Skill(1, "fix", "a knowledge-gap skill", corrects=0) and fresh.skills[1].gated
+    assert fresh.corrections()[0].tolist() == [False, True]
+    # tables written before corrections existed read as plain skills
+    legacy = b'[{"index": 0, "name": "old", "description": ""}]'
+    table = torch.zeros_like(fresh.skill_table)
+    table[: len(legacy)] = torch.frombuffer(bytearray(legacy), dtype=torch.uint8)
+    fresh.load_state_dict({**fresh.state_dict(), "skill_table": table, "task_count": torch.ones(1, dtype=torch.int64)})
+    assert fresh.skills == [Skill(0, "old", "")] and fresh.corrections() is None
+
+
+def test_copy_skill_starts_the_learned_skill_as_an_earlier_one() -> None:
+    pool = make_pool(2)
+    pool.copy_skill(0, 1)
+    for attr in ("prompts", "keys", "attn"):
+        assert torch.equal(getattr(pool.tasks[1], attr), getattr(pool.tasks[0], attr))
+    with pytest.raises(ValueError, match="copy"):
+        pool.copy_skill(1, 0)  # only into the skill being learned
+
+
 def test_skill_table_overflow_is_an_error() -> None:
     pool = make_pool(0)
     with pytest.raises(ValueError, match="skill table"):
