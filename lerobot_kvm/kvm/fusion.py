@@ -36,10 +36,19 @@ def fuse_weights(v: Tensor, alphas: Tensor, renormalize: bool = False, eps: floa
     return v * factor
 
 
-def correction_validity(v: Tensor, corrections: tuple[Tensor, Tensor] | None) -> Tensor:
-    """v [B, S] with each correcting skill i raised to max(v_i, 1 - v_target(i)); `corrections` = (mask [S] bool,
-    target [S] index) from `CodaPromptPool.corrections` (None: no correcting skill, v unchanged)."""
+def correction_validity(
+    v: Tensor, corrections: tuple[Tensor, Tensor] | None, alphas: Tensor, necessity: float = 0.8
+) -> Tensor:
+    """v [B, S] with each correcting skill i raised to max(v_i, 1 - v_target(i)) in the rows where its target is
+    necessary: the target's relevance alpha [B, S] is at least `necessity` times the largest relevance of a skill
+    that corrects nothing (the target is the knowledge the task relies on, not a bystander that every novel
+    context makes invalid). `corrections` = (mask [S] bool, target [S] index) from
+    `CodaPromptPool.corrections` (None: no correcting skill, v unchanged)."""
     if corrections is None:
         return v
     mask, target = corrections
-    return torch.where(mask.unsqueeze(0), torch.maximum(v, 1 - v[:, target]), v)
+    mass = alphas.abs()
+    scale = mass.masked_fill(mask.unsqueeze(0), 0.0).amax(-1, keepdim=True).clamp_min(1e-8)
+    necessary = mass[:, target] >= necessity * scale
+    inherited = torch.where(necessary, 1 - v[:, target], torch.zeros_like(v))
+    return torch.where(mask.unsqueeze(0), torch.maximum(v, inherited), v)

@@ -136,7 +136,8 @@ def focused_finetune(
 
     The action loss is computed with the fused prompt the KVM will use in these contexts (its validities, with
     the current relevances), so what is trained is what will run. A key term pulls the new skill's component
-    relevances towards 1 on the seed queries and below 0 on other known queries.
+    relevances towards 1 on the seed queries and towards 0 on other known queries (a negative alpha still adds a
+    prompt, and makes the skill relevant there).
     """
     if steps <= 0:
         return {}
@@ -152,7 +153,9 @@ def focused_finetune(
     cfg = policy.config.kvm
     with torch.no_grad():
         c_raw = policy.kvm.raw_context(frames[policy.config.context_key], queries)
-        v = policy.kvm.score(c_raw, policy.n_skills, active, corrections=pool.corrections())
+        corrections = pool.corrections()
+        alphas = pool.skill_relevance(queries) if corrections is not None else None
+        v = policy.kvm.score(c_raw, policy.n_skills, active, corrections=corrections, alphas=alphas)
     grad_flags = [p.requires_grad for p in policy.backbone.parameters()]
     was_training = policy.training
     policy.backbone.requires_grad_(False)
@@ -176,7 +179,7 @@ def focused_finetune(
                 key = (1 - alphas[..., lo:hi]).mean()
                 if other_queries is not None and len(other_queries):
                     other = pool.component_alphas(other_queries)[..., lo:hi]
-                    key = key + other.clamp_min(0).mean()
+                    key = key + other.abs().mean()
                 loss = l1 + key_weight * key
                 optimizer.zero_grad()
                 loss.backward()
@@ -426,16 +429,17 @@ def _begin_gap_skill(policy: "CodaKvmPolicy", hypothesis_id: int, culprit: int, 
 def _gap_skill(
     policy: "CodaKvmPolicy", hypothesis_id: int, culprit: int, relevance: Tensor, active: Tensor, task: str
 ) -> dict[str, Any] | None:
-    """The skill a failure's corrective demonstration seeds. A gap skill already made for this hypothesis, or
-    a gap skill blamed itself, is refined while it is still the skill being learned (never replaced by another).
-    Otherwise a new gated skill when every alternative to the culprit is weak in the failure context (the
-    knowledge gap) and the pool has room. None: the demonstration teaches an existing alternative."""
+    """The skill a failure's corrective demonstration seeds. A gap skill already made for this hypothesis is
+    refined while it is still the skill being learned (never replaced by another). Otherwise a new gated skill
+    when every alternative to the culprit is weak in the failure context (the knowledge gap) and the pool has
+    room. None: the demonstration teaches an existing alternative."""
     made = policy.kvm.hypotheses.info(hypothesis_id)["new_skill"]
-    target = made if made >= 0 else (culprit if policy.skills[culprit].gated else -1)
-    if target >= 0:
-        if target != policy.n_skills - 1:
+    if made >= 0:
+        if made != policy.n_skills - 1:
             return None
-        return {"created": False, "index": target, "name": policy.skills[target].name}
+        return {"created": False, "index": made, "name": policy.skills[made].name}
+    if policy.skills[culprit].gated:
+        return None  # a failing correction is the attribution's to judge: no correction of a correction
     if not len(relevance) or not knowledge_gap(relevance, culprit, active, policy.config.kvm.gap_alpha):
         return None
     if policy.n_skills >= policy.config.n_tasks:

@@ -132,9 +132,11 @@ class KnowledgeValidityModule(nn.Module):
         active: Tensor,
         use_gate: bool = True,
         corrections: tuple[Tensor, Tensor] | None = None,
+        alphas: Tensor | None = None,
     ) -> Tensor:
-        """v [N, S] as `assess` would give it for these contexts (gate, fail-safe, pruning, corrections), without
-        fusion (a correction's absence where the gate is closed is a fusion weight, not a validity)."""
+        """v [N, S] as `assess` would give it for these contexts (gate, fail-safe, pruning; corrections given the
+        per-skill relevance `alphas`), without fusion (a correction's absence where the gate is closed is a fusion
+        weight, not a validity)."""
         mu, sigma2, valid = self.encode(c_raw)
         energy = self.skill_energies(mu, n_skills)
         v = validity(energy, self.config.gamma, self.config.l0)
@@ -142,7 +144,9 @@ class KnowledgeValidityModule(nn.Module):
             v = torch.where((sigma2 > self.threshold()).unsqueeze(-1), v, torch.ones_like(v))
         ok = valid.unsqueeze(-1) & torch.isfinite(energy) & active.unsqueeze(0)
         v = torch.where(ok, v, torch.zeros_like(v))
-        return v if corrections is None else torch.where(ok, correction_validity(v, corrections), 0.0)
+        if corrections is None or alphas is None:
+            return v
+        return torch.where(ok, correction_validity(v, corrections, alphas, self.config.tau_high), 0.0)
 
     def threshold(self) -> Tensor:
         return self.gate.threshold(self.encoder, self.gate_memory)
@@ -212,7 +216,9 @@ class KnowledgeValidityModule(nn.Module):
             invalid = ~valid.unsqueeze(-1) | (gate.unsqueeze(-1) & ~torch.isfinite(e))
         v = torch.where(invalid | ~active.unsqueeze(0), torch.zeros_like(v), v)
         if corrections is not None:
-            v = torch.where(invalid | ~active.unsqueeze(0), 0.0, correction_validity(v, corrections))
+            alphas = alphas() if callable(alphas) else alphas
+            corrected = correction_validity(v, corrections, alphas, cfg.tau_high)
+            v = torch.where(invalid | ~active.unsqueeze(0), 0.0, corrected)
         # The default fusion scales each skill by v alone, so the relevance stays lazy (telemetry may ask for it).
         if cfg.fusion_renormalize:
             alphas = alphas() if callable(alphas) else alphas

@@ -123,12 +123,14 @@ def test_eq3_fusion_is_identity_at_v_one_and_renormalises_suppression() -> None:
     assert torch.equal(fuse_weights(torch.zeros(1, 3), alphas, renormalize=True), torch.zeros(1, 3))
 
 
-def test_a_correction_is_valid_at_least_where_the_skill_it_corrects_is_not() -> None:
-    v = torch.tensor([[0.02, 0.9, 0.1], [0.95, 0.3, 0.05]])
+def test_a_correction_is_valid_at_least_where_the_skill_it_corrects_is_not_and_is_relied_on() -> None:
+    v = torch.tensor([[0.02, 0.9, 0.1], [0.95, 0.3, 0.05], [0.0, 0.0, 0.0]])
     corrections = (torch.tensor([False, False, True]), torch.tensor([0, 1, 0]))  # skill 2 corrects skill 0
-    expected = torch.tensor([[0.02, 0.9, 0.98], [0.95, 0.3, 0.05]])
-    assert torch.allclose(correction_validity(v, corrections), expected)
-    assert correction_validity(v, None) is v
+    # relevance: the largest non-correcting skill sets the scale; row 3's skill 0 is a bystander (0.5 < 0.8)
+    alphas = torch.tensor([[2.0, 1.0, 5.0], [1.0, 1.0, 1.0], [1.0, 2.0, 1.0]])
+    expected = torch.tensor([[0.02, 0.9, 0.98], [0.95, 0.3, 0.05], [0.0, 0.0, 0.0]])
+    assert torch.allclose(correction_validity(v, corrections, alphas, necessity=0.8), expected)
+    assert correction_validity(v, None, alphas) is v
 
 
 def test_eq3_fused_prompt_is_the_weighted_sum_of_skill_contributions() -> None:

@@ -83,6 +83,8 @@ def test_a_correction_is_out_of_force_with_the_gate_closed_and_takes_over_where_
     tele = policy.kvm_telemetry
     raw = policy.kvm_validity(batch)
     assert torch.equal(tele.validity[:, 0], raw[:, 0])
+    relied_on = tele.alpha[:, 0] >= 0.8 * tele.alpha[:, 0]  # skill 0 is the only skill that corrects nothing
+    assert relied_on.all()
     assert torch.equal(tele.validity[:, 1], torch.maximum(raw[:, 1], 1 - raw[:, 0]))
     assert torch.equal(tele.skill_weight, tele.validity)
 
