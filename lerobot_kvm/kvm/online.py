@@ -16,7 +16,7 @@ after an attempt:
   the culprit is weak in the failure context, suppression alone would leave no strategy, so a new *gated* skill
   that corrects the culprit (`fusion.correction_validity`) is begun and seeded from the demonstration: KVM
   positives from the demonstrated and the failed contexts, then the feedback's gradient budget as focused steps
-  on its parameters only. Later failures of the same hypothesis refine it while it is the skill being learned.
+  on its parameters only. Later failures of the same hypothesis, or blamed on it in its task, refine it.
 * success: safe samples for the dominant skill (routine ones, without intervention, also feed the gate window
   and E_c's reconstruction). Interventions (a candidate suppressed, v_i < tau_v) in a context similar to an open
   hypothesis of that skill count for it; an intervention confirms it when the counter exceeds N_p and the skill
@@ -143,8 +143,11 @@ def focused_finetune(
         return {}
     pool = policy.pool
     params = list(pool.tasks[skill].parameters())
-    if not all(p.requires_grad for p in params):
+    skill_flags = [p.requires_grad for p in params]
+    if not all(skill_flags) and not policy.skills[skill].gated:
         raise RuntimeError(f"skill {skill} is not the skill being learned; begin it with begin_new_skill first")
+    for p in params:  # a correction stays refinable by the failures it was made for
+        p.requires_grad_(True)
     device = policy.query_fingerprint.device
     frames = {k: v.to(device) if isinstance(v, Tensor) else v for k, v in frames.items()}
     n = frames[ACTION].shape[0]
@@ -187,6 +190,8 @@ def focused_finetune(
                 last = {"focused_l1": float(l1.detach()), "focused_key": float(key.detach())}
     finally:
         for p, flag in zip(policy.backbone.parameters(), grad_flags, strict=True):
+            p.requires_grad_(flag)
+        for p, flag in zip(params, skill_flags, strict=True):
             p.requires_grad_(flag)
         optimizer.zero_grad(set_to_none=True)
         policy.train(was_training)
@@ -429,17 +434,23 @@ def _begin_gap_skill(policy: "CodaKvmPolicy", hypothesis_id: int, culprit: int, 
 def _gap_skill(
     policy: "CodaKvmPolicy", hypothesis_id: int, culprit: int, relevance: Tensor, active: Tensor, task: str
 ) -> dict[str, Any] | None:
-    """The skill a failure's corrective demonstration seeds. A gap skill already made for this hypothesis is
-    refined while it is still the skill being learned (never replaced by another). Otherwise a new gated skill
-    when every alternative to the culprit is weak in the failure context (the knowledge gap) and the pool has
-    room. None: the demonstration teaches an existing alternative."""
+    """The skill a failure's corrective demonstration seeds. A gap skill already made for this hypothesis, or
+    a blamed correction of the skill the task relies on, is refined (never replaced by another). Otherwise a
+    new gated skill when every alternative to the culprit is weak in the failure context (the knowledge gap)
+    and the pool has room. None: the demonstration teaches an existing alternative."""
+    skills = policy.skills
     made = policy.kvm.hypotheses.info(hypothesis_id)["new_skill"]
+    if made < 0 and skills[culprit].gated and len(relevance):
+        # a failing correction is refined where the task relies on the skill it corrects; elsewhere it is the
+        # attribution's to judge (never a correction of a correction)
+        plain = torch.tensor([not s.gated for s in skills], device=relevance.device)
+        scale = relevance[:, plain].amax(-1).mean()
+        if relevance[:, skills[culprit].corrects].mean() >= policy.config.kvm.tau_high * scale:
+            made = culprit
     if made >= 0:
-        if made != policy.n_skills - 1:
-            return None
-        return {"created": False, "index": made, "name": policy.skills[made].name}
-    if policy.skills[culprit].gated:
-        return None  # a failing correction is the attribution's to judge: no correction of a correction
+        return {"created": False, "index": made, "name": skills[made].name}
+    if skills[culprit].gated:
+        return None
     if not len(relevance) or not knowledge_gap(relevance, culprit, active, policy.config.kvm.gap_alpha):
         return None
     if policy.n_skills >= policy.config.n_tasks:
