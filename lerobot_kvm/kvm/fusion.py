@@ -36,6 +36,12 @@ def fuse_weights(v: Tensor, alphas: Tensor, renormalize: bool = False, eps: floa
     return v * factor
 
 
+def plain_scale(alphas: Tensor, correcting: Tensor) -> Tensor:
+    """[B] the largest relevance among the skills that correct nothing (`correcting` [S] bool): the scale on
+    which a corrected skill counts as the knowledge a task relies on."""
+    return alphas.abs().masked_fill(correcting.unsqueeze(0), 0.0).amax(-1).clamp_min(1e-8)
+
+
 def correction_validity(
     v: Tensor, corrections: tuple[Tensor, Tensor] | None, alphas: Tensor, necessity: float = 0.8
 ) -> Tensor:
@@ -48,7 +54,6 @@ def correction_validity(
         return v
     mask, target = corrections
     mass = alphas.abs()
-    scale = mass.masked_fill(mask.unsqueeze(0), 0.0).amax(-1, keepdim=True).clamp_min(1e-8)
-    necessary = mass[:, target] >= necessity * scale
+    necessary = mass[:, target] >= necessity * plain_scale(mass, mask).unsqueeze(-1)
     inherited = torch.where(necessary, 1 - v[:, target], torch.zeros_like(v))
     return torch.where(mask.unsqueeze(0), torch.maximum(v, inherited), v)

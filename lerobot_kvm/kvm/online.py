@@ -34,7 +34,7 @@ import torch.nn.functional as F  # noqa: N812
 from torch import Tensor
 
 from .attribution import OPEN, culprit_skill, knowledge_gap, normalised_relevance
-from .fusion import fuse_weights
+from .fusion import fuse_weights, plain_scale
 from .telemetry import KvmTrace
 
 if TYPE_CHECKING:
@@ -443,8 +443,7 @@ def _gap_skill(
     if made < 0 and skills[culprit].gated and len(relevance):
         # a failing correction is refined where the task relies on the skill it corrects; elsewhere it is the
         # attribution's to judge (never a correction of a correction)
-        plain = torch.tensor([not s.gated for s in skills], device=relevance.device)
-        scale = relevance[:, plain].amax(-1).mean()
+        scale = plain_scale(relevance, policy.pool.corrections()[0]).mean()
         if relevance[:, skills[culprit].corrects].mean() >= policy.config.kvm.tau_high * scale:
             made = culprit
     if made >= 0:

@@ -214,11 +214,11 @@ class KnowledgeValidityModule(nn.Module):
             energy = torch.where(gate.unsqueeze(-1), e, energy)
             v = torch.where(gate.unsqueeze(-1), validity(e, cfg.gamma, cfg.l0), torch.ones_like(e))
             invalid = ~valid.unsqueeze(-1) | (gate.unsqueeze(-1) & ~torch.isfinite(e))
-        v = torch.where(invalid | ~active.unsqueeze(0), torch.zeros_like(v), v)
+        off = invalid | ~active.unsqueeze(0)
+        v = torch.where(off, torch.zeros_like(v), v)
         if corrections is not None:
             alphas = alphas() if callable(alphas) else alphas
-            corrected = correction_validity(v, corrections, alphas, cfg.tau_high)
-            v = torch.where(invalid | ~active.unsqueeze(0), 0.0, corrected)
+            v = torch.where(off, 0.0, correction_validity(v, corrections, alphas, cfg.tau_high))
         # The default fusion scales each skill by v alone, so the relevance stays lazy (telemetry may ask for it).
         if cfg.fusion_renormalize:
             alphas = alphas() if callable(alphas) else alphas
