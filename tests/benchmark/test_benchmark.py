@@ -7,8 +7,16 @@ from pathlib import Path
 import pytest
 
 from lerobot_kvm.benchmark.continual import SequenceConfig
-from lerobot_kvm.benchmark.protocol import BenchmarkConfig, episode_fields, episode_seed, uncovered_scenarios
+from lerobot_kvm.benchmark.protocol import (
+    KVM_METHODS,
+    PEER_METHODS,
+    BenchmarkConfig,
+    episode_fields,
+    episode_seed,
+    uncovered_scenarios,
+)
 from lerobot_kvm.benchmark.report import coverage_lines
+from lerobot_kvm.envs.scenario import SCENARIOS
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
@@ -50,6 +58,16 @@ def test_scenarios_whose_prior_skill_the_pool_never_learned_are_flagged():
     quick = BenchmarkConfig.from_json(CONFIGS / "benchmark_quick.json")
     assert uncovered_scenarios(SequenceConfig.from_json(CONFIGS / "cl_quick.json"), quick.scenarios) == []
     assert coverage_lines([]) == [] and "chip_bag" in coverage_lines(["chip_bag"])[0]
+
+
+def test_full_benchmark_covers_the_whole_suite_with_every_method():
+    full = BenchmarkConfig.from_json(CONFIGS / "benchmark_full.json")
+    assert sorted(full.scenarios) == sorted(SCENARIOS) and full.runs >= 5 and full.passes == 3
+    assert set(full.methods) == {*KVM_METHODS, *PEER_METHODS}
+    sequence = SequenceConfig.from_json(CONFIGS / "cl_full.json")
+    assert uncovered_scenarios(sequence, full.scenarios) == []
+    # leakage rule: no shifted variant before the benchmark
+    assert {t.variant for t in [*sequence.tasks, *sequence.pretrain_tasks]} == {"prior"}
 
 
 def test_episode_fields_without_a_validity_trace():
