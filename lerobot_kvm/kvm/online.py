@@ -318,7 +318,8 @@ def apply_feedback(
         gap = None
         if demonstration is not None:
             frames = _demo_frames(policy, demonstration)
-            if cfg.gap_on_failure and steps:
+            named = _named_skill(policy, demonstration.get("skill"))
+            if cfg.gap_on_failure and steps and named is None:  # a demonstrated skill the pool has is no gap
                 gap = _gap_skill(policy, hypothesis_id, culprit, relevance[context], active, task_name)
                 active = policy.kvm_active_skills()
             with torch.no_grad():
@@ -328,8 +329,10 @@ def apply_feedback(
                 d_rel = normalised_relevance(policy.pool.skill_relevance(d_query), active)
             if gap is not None:
                 demo_skill = gap["index"]
+            elif named is not None:
+                demo_skill = named
             else:
-                demo_skill = _demo_skill(policy, demonstration.get("skill"), d_rel, culprit, active)
+                demo_skill = _demo_skill(d_rel, culprit, active)
             if demo_skill is not None:
                 # a gap skill is meant for the contexts the culprit failed in as well as the demonstrated ones
                 seen = torch.cat([d_raw, c_raw]) if gap is not None else d_raw
@@ -394,14 +397,13 @@ def apply_feedback(
     return report
 
 
-def _demo_skill(
-    policy: "CodaKvmPolicy", name: str | None, relevance: Tensor, culprit: int, active: Tensor
-) -> int | None:
-    """The policy skill a demonstration shows: by name, else the most relevant active alternative."""
-    if name is not None:
-        for s in policy.skills:
-            if s.name == name:
-                return s.index
+def _named_skill(policy: "CodaKvmPolicy", name: str | None) -> int | None:
+    """The pool's skill a demonstration names, if it has one by that name."""
+    return next((s.index for s in policy.skills if s.name == name), None) if name is not None else None
+
+
+def _demo_skill(relevance: Tensor, culprit: int, active: Tensor) -> int | None:
+    """The policy skill an unnamed demonstration shows: the most relevant active alternative to the culprit."""
     alternatives = active.clone()
     alternatives[culprit] = False
     if not bool(alternatives.any()):

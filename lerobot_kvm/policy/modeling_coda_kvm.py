@@ -158,7 +158,8 @@ class CodaKvmPolicy(PreTrainedPolicy):
 
         outcome: "success", "failure" or "catastrophe"; trace: the attempt (default: the current trace, which
         must hold one environment); demonstration: an optional corrective demonstration (policy inputs and
-        normalized actions over T steps, see `kvm.online.make_demonstration`); gradient_steps: the budget of
+        normalized actions over T steps, see `kvm.online.make_demonstration`; one that names a skill of the pool
+        teaches that skill, so it is no knowledge gap); gradient_steps: the budget of
         KVM gradient steps (default `kvm.feedback_steps`). Returns a report of what was learned and decided.
         """
         trace = self._kvm_trace if trace is None else trace

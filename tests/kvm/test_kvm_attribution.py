@@ -124,13 +124,13 @@ def test_confirmed_gap_creates_a_new_skill_trained_alone(make_policy, attempt) -
     assert "focused_l1" in new and new["seed_frames"] == 6
 
 
-def _demonstration(policy, make_batch, steps: int = 5) -> dict:
+def _demonstration(policy, make_batch, steps: int = 5, skill: str | None = None) -> dict:
     per_step = []
     for t in range(steps):
         b = make_batch(policy.config, batch_size=1, task=EGG, seed=50 + t)
         b["action"] = b["action"][:, 0]
         per_step.append(b)
-    return make_demonstration(per_step)
+    return make_demonstration(per_step, skill=skill)
 
 
 def test_a_failure_without_a_strong_alternative_seeds_a_correcting_skill_from_its_demonstration(
@@ -172,6 +172,19 @@ def test_no_skill_from_a_failure_when_the_gap_test_is_off_or_an_alternative_is_s
     report = policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6), demonstration=demo, gradient_steps=2)
     assert report["new_skill"] is None and policy.n_skills == 2 and report["demo_skill"] in (0, 1)
     assert report["demo_skill"] != report["culprit"]
+
+
+def test_a_demonstration_of_a_skill_the_pool_has_is_no_knowledge_gap(make_policy, make_batch, attempt) -> None:
+    unnamed, named = make_policy(), make_policy()
+    for policy in (unnamed, named):
+        policy.begin_new_skill("gentle_grasp")  # weak in the egg's context: the gap test alone would pass
+    demo = _demonstration(unnamed, make_batch)
+    gap = unnamed.kvm_feedback("catastrophe", attempt(unnamed, EGG, steps=6), demonstration=demo, gradient_steps=2)
+    assert gap["new_skill"]["created"] and unnamed.n_skills == 3
+    demo = _demonstration(named, make_batch, skill="gentle_grasp")
+    report = named.kvm_feedback("catastrophe", attempt(named, EGG, steps=6), demonstration=demo, gradient_steps=2)
+    assert report["new_skill"] is None and named.n_skills == 2
+    assert report["demo_skill"] == 1 and report["positives_added"] == 5  # the demonstrated contexts only
 
 
 def test_a_failure_with_the_culprit_suppressed_restarts_its_persistence(make_policy, attempt) -> None:
