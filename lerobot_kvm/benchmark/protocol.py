@@ -17,11 +17,13 @@
    skill's expert on the prior variant (safe), same seed. The prior skill's shifted expert's catastrophe step is
    the reference for the detection lead.
 
-The unit of resumption is one (method, run): its episode records are written when it finishes, and a later
-invocation reuses them. Nothing the policy sees carries the variant, object parameters or hazard labels.
+The unit of resumption is one pass of one (method, run): a finished run's episode records are reused by a later
+invocation, and an interrupted run resumes at the pass after its last finished one, from the policy that pass
+left behind. Nothing the policy sees carries the variant, object parameters or hazard labels.
 """
 
 import json
+import shutil
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -92,20 +94,21 @@ def episode_seed(base: int, run: int, pass_: int, index: int, offset: int = 0) -
 
 
 # ---------------------------------------------------------------------------- policies
-def load_policy(method: str, checkpoint: Path) -> tuple[Any, Any, Any]:
-    """(policy, preprocessor, postprocessor) of a method, loaded afresh from its pool checkpoint."""
+def load_policy(method: str, checkpoint: Path, weights: Path | None = None) -> tuple[Any, Any, Any]:
+    """(policy, preprocessor, postprocessor) of a method: the policy from its pool checkpoint (or from `weights`,
+    the state a resumed run had reached), the processors always from the pool checkpoint."""
     from lerobot.policies.factory import make_pre_post_processors
 
     if method in KVM_METHODS:
         from ..policy import CodaKvmPolicy
 
-        policy = CodaKvmPolicy.from_pretrained(checkpoint)
+        policy = CodaKvmPolicy.from_pretrained(weights or checkpoint)
         for key, value in KVM_METHODS[method].items():
             setattr(policy.config.kvm, key, value)
     else:
         from lerobot.policies.act.modeling_act import ACTPolicy
 
-        policy = ACTPolicy.from_pretrained(checkpoint)
+        policy = ACTPolicy.from_pretrained(weights or checkpoint)
     policy.eval()
     pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
     return policy, pre, post
@@ -269,13 +272,20 @@ class Benchmark:
 
     # ------------------------------------------------------------------ one (method, run)
     def run_method(self, method: str, run: int, checkpoint: Path, bar: tqdm | None = None) -> dict[str, Any]:
-        """Every pass of one run of one method, from the pool checkpoint loaded afresh."""
+        """Every pass of one run of one method, from the pool checkpoint loaded afresh. After each pass but the
+        last, the policy (all it learned) and the records so far are kept under `run_<r>.partial/`, so that an
+        interrupted run resumes at its next pass with the same result as an uninterrupted one."""
         cfg = self.config
-        torch.manual_seed(cfg.seed + run)
-        policy, pre, post = load_policy(method, checkpoint)
-        out: dict[str, Any] = {"method": method, "run": run, "records": [], "probes": [], "feedback": []}
-        started = time.time()
-        for pass_ in range(1, cfg.passes + 1):
+        partial = self._partial_dir(method, run)
+        done, out, weights = self._resume(partial)
+        if out is None:
+            out = {"method": method, "run": run, "records": [], "probes": [], "feedback": [], "wall_time_s": 0.0}
+        policy, pre, post = load_policy(method, checkpoint, weights)
+        if bar is not None:
+            bar.update(done * len(cfg.scenarios))
+        for pass_ in range(done + 1, cfg.passes + 1):
+            started = time.time()
+            torch.manual_seed(episode_seed(cfg.seed, run, pass_, 0))  # per pass: a resumed pass draws the same
             for i, scenario in enumerate(cfg.scenarios):
                 if bar is not None:
                     bar.set_description(f"{method} run {run + 1} pass {pass_} {scenario}")
@@ -291,8 +301,36 @@ class Benchmark:
                 self._controls(method, policy, pre, post, base, seed, out)
                 if bar is not None:
                     bar.update()
-        out["wall_time_s"] = time.time() - started
+            out["wall_time_s"] += time.time() - started
+            if pass_ < cfg.passes:
+                self._keep_pass(partial, pass_, policy, out)
         return out
+
+    def _partial_dir(self, method: str, run: int) -> Path:
+        return self.out / "episodes" / method / f"run_{run}.partial"
+
+    @staticmethod
+    def _resume(partial: Path) -> tuple[int, dict[str, Any] | None, Path | None]:
+        """(passes done, their records, the policy they left) of an interrupted run; (0, None, None) if none."""
+        states = sorted(partial.glob("pass_*.json"), key=lambda p: int(p.stem.split("_")[1]))
+        if not states:
+            return 0, None, None
+        done = int(states[-1].stem.split("_")[1])
+        return done, json.loads(states[-1].read_text()), partial / f"pass_{done}"
+
+    @staticmethod
+    def _keep_pass(partial: Path, pass_: int, policy: Any, out: dict[str, Any]) -> None:
+        """The policy first, then the records that point to it: a state file only ever names a whole policy."""
+        policy_dir = partial / f"pass_{pass_}"
+        shutil.rmtree(policy_dir, ignore_errors=True)
+        partial.mkdir(parents=True, exist_ok=True)
+        policy.save_pretrained(policy_dir)
+        tmp = partial / f"pass_{pass_}.tmp"
+        tmp.write_text(json.dumps(out))
+        tmp.replace(partial / f"pass_{pass_}.json")
+        for older in range(1, pass_):
+            (partial / f"pass_{older}.json").unlink(missing_ok=True)
+            shutil.rmtree(partial / f"pass_{older}", ignore_errors=True)
 
     def _challenge(
         self, method: str, policy: Any, pre: Any, post: Any, base: dict[str, Any], seed: int, out: dict[str, Any]
@@ -410,7 +448,8 @@ class Benchmark:
             path.parent.mkdir(parents=True, exist_ok=True)
             tmp = path.with_suffix(".tmp")
             tmp.write_text(json.dumps(result))
-            tmp.replace(path)  # a run either finished or is redone: never half-written
+            tmp.replace(path)  # a finished run is never half-written
+            shutil.rmtree(self._partial_dir(method, run), ignore_errors=True)
             runs.append(result)
         return runs
 

@@ -10,6 +10,7 @@ from lerobot_kvm.benchmark.continual import SequenceConfig
 from lerobot_kvm.benchmark.protocol import (
     KVM_METHODS,
     PEER_METHODS,
+    Benchmark,
     BenchmarkConfig,
     episode_fields,
     episode_seed,
@@ -140,3 +141,52 @@ def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
     assert json.loads((out / "results.json").read_text())["overhead"] == results["overhead"]  # measured once
+    assert not list((out / "episodes").rglob("*.partial"))  # finished runs keep no per-pass state
+
+
+@pytest.mark.slow
+def test_an_interrupted_run_resumes_at_its_next_pass_with_the_result_of_an_uninterrupted_one(
+    tiny_pool, tmp_path, monkeypatch
+) -> None:
+    config = BenchmarkConfig(
+        name="tiny",
+        sequence=str(CONFIGS / "cl_tiny.json"),
+        scenarios=["egg_vs_stone"],
+        methods=["coda_kvm", "act"],
+        passes=2,
+        feedback_steps=2,
+        finetune_batch=4,
+        dataset_root=str(tiny_pool["data"]),
+    )
+
+    def benchmark(name: str) -> tuple[Benchmark, dict[str, Path]]:
+        out = tmp_path / name
+        out.mkdir()
+        (out / "pool").symlink_to(tiny_pool["out"])  # the tiny pool as it is: nothing is trained here
+        bench = Benchmark(config, out, progress=False)
+        return bench, bench.grow_pool()[1]
+
+    whole, checkpoints = benchmark("whole")
+    resumed, _ = benchmark("resumed")
+    controls = Benchmark._controls
+
+    def interrupted_in_pass_2(self, method, policy, pre, post, base, seed, out) -> None:
+        if base["pass"] == 2:
+            raise KeyboardInterrupt
+        controls(self, method, policy, pre, post, base, seed, out)
+
+    def summary(run: dict) -> list[tuple]:
+        return [(r["pass"], r["kind"], r["attempt"], r["outcome"], r["steps"]) for r in run["records"]]
+
+    for method, family in (("coda_kvm", "kvm"), ("act", "act")):
+        reference = whole.run_method(method, 0, checkpoints[family])
+        with monkeypatch.context() as patch:
+            patch.setattr(Benchmark, "_controls", interrupted_in_pass_2)
+            with pytest.raises(KeyboardInterrupt):
+                resumed.run_method(method, 0, checkpoints[family])
+        partial = resumed._partial_dir(method, 0)
+        assert (partial / "pass_1.json").exists() and (partial / "pass_1" / "config.json").exists()
+        again = resumed.run_method(method, 0, checkpoints[family])
+        assert {r["pass"] for r in again["records"]} == {1, 2}
+        assert summary(again) == summary(reference), method
+        assert len(again["feedback"]) == len(reference["feedback"])
