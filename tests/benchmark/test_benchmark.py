@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_kvm.benchmark.continual import SequenceConfig
+from lerobot_kvm.benchmark.continual import ContinualRun, SequenceConfig
 from lerobot_kvm.benchmark.protocol import (
     KVM_METHODS,
     PEER_METHODS,
@@ -159,15 +159,10 @@ def test_an_interrupted_run_resumes_at_its_next_pass_with_the_result_of_an_unint
         dataset_root=str(tiny_pool["data"]),
     )
 
-    def benchmark(name: str) -> tuple[Benchmark, dict[str, Path]]:
-        out = tmp_path / name
-        out.mkdir()
-        (out / "pool").symlink_to(tiny_pool["out"])  # the tiny pool as it is: nothing is trained here
-        bench = Benchmark(config, out, progress=False)
-        return bench, bench.grow_pool()[1]
-
-    whole, checkpoints = benchmark("whole")
-    resumed, _ = benchmark("resumed")
+    whole = Benchmark(config, tmp_path / "whole", progress=False)
+    resumed = Benchmark(config, tmp_path / "resumed", progress=False)
+    pool = ContinualRun(whole.sequence, tiny_pool["out"])  # the tiny pool's checkpoints, read only
+    checkpoints = {"kvm": pool.final_checkpoint("coda_kvm"), "act": pool.final_checkpoint("act_joint")}
     controls = Benchmark._controls
 
     def interrupted_in_pass_2(self, method, policy, pre, post, base, seed, out) -> None:
