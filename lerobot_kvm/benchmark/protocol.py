@@ -36,7 +36,7 @@ from tqdm import tqdm
 from ..envs.env import KvmObsolescenceEnv
 from ..envs.scenario import SCENARIOS
 from ..kvm.evaluation import expert_rollout, run_attempt
-from ..kvm.online import chunk_targets
+from ..kvm.online import chunk_targets, skill_by_name
 from ..kvm.validity_check import CONTEXT, shift_step
 from .continual import ContinualRun, SequenceConfig, read_config
 
@@ -208,9 +208,7 @@ def prior_skill_scores(policy: Any, demos: list[dict[str, Any]], skill: int) -> 
 
 def skill_index(policy: Any, scenario: str, skill: str) -> int | None:
     """The pool's skill learned from `scenario`'s `skill` expert (named "<scenario>.<skill>" by the sequence)."""
-    names = [s.name for s in policy.skills]
-    name = f"{scenario}.{skill}"
-    return names.index(name) if name in names else None
+    return skill_by_name(policy, f"{scenario}.{skill}")
 
 
 def uncovered_scenarios(sequence: SequenceConfig, scenarios: Sequence[str]) -> list[str]:

@@ -318,7 +318,7 @@ def apply_feedback(
         gap = None
         if demonstration is not None:
             frames = _demo_frames(policy, demonstration)
-            named = _named_skill(policy, demonstration.get("skill"))
+            named = skill_by_name(policy, demonstration.get("skill"))
             if cfg.gap_on_failure and steps and named is None:  # a demonstrated skill the pool has is no gap
                 gap = _gap_skill(policy, hypothesis_id, culprit, relevance[context], active, task_name)
                 active = policy.kvm_active_skills()
@@ -397,7 +397,7 @@ def apply_feedback(
     return report
 
 
-def _named_skill(policy: "CodaKvmPolicy", name: str | None) -> int | None:
+def skill_by_name(policy: "CodaKvmPolicy", name: str | None) -> int | None:
     """The pool's skill a demonstration names, if it has one by that name."""
     return next((s.index for s in policy.skills if s.name == name), None) if name is not None else None
 
