@@ -43,17 +43,41 @@ def plain_scale(alphas: Tensor, correcting: Tensor) -> Tensor:
 
 
 def correction_validity(
-    v: Tensor, corrections: tuple[Tensor, Tensor] | None, alphas: Tensor, necessity: float = 0.8
+    v: Tensor,
+    corrections: tuple[Tensor, Tensor] | None,
+    alphas: Tensor,
+    necessity: float = 0.8,
+    active: Tensor | None = None,
 ) -> Tensor:
     """v [B, S] with each correcting skill i raised to max(v_i, 1 - v_target(i)) in the rows where its target is
     necessary: the target's relevance alpha [B, S] is at least `necessity` times the largest relevance of a skill
     that corrects nothing (the target is the knowledge the task relies on, not a bystander that every novel
     context makes invalid). `corrections` = (mask [S] bool, target [S] index) from
-    `CodaPromptPool.corrections` (None: no correcting skill, v unchanged)."""
+    `CodaPromptPool.corrections` (None: no correcting skill, v unchanged).
+
+    Two refinements keep corrections where they were made for. When one skill has several corrections (each
+    made in another context), only the one with the highest own validity in a row inherits there (ties go to
+    the oldest): the others' strategies were learned elsewhere. A pruned target (`active` [S] bool false) passes
+    nothing on: its v = 0 is no judgement of the context."""
     if corrections is None:
         return v
     mask, target = corrections
     mass = alphas.abs()
     necessary = mass[:, target] >= necessity * plain_scale(mass, mask).unsqueeze(-1)
-    inherited = torch.where(necessary, 1 - v[:, target], torch.zeros_like(v))
+    if active is not None:
+        necessary &= active[target].unsqueeze(0)
+    inherited = torch.where(necessary & _chosen_sibling(v, mask, target), 1 - v[:, target], torch.zeros_like(v))
     return torch.where(mask.unsqueeze(0), torch.maximum(v, inherited), v)
+
+
+def _chosen_sibling(v: Tensor, mask: Tensor, target: Tensor) -> Tensor:
+    """[B, S] bool: correction i has the highest own v among the corrections of its target (earlier index on a
+    tie); True for every skill without a sibling."""
+    n = mask.shape[0]
+    index = torch.arange(n, device=mask.device)
+    sibling = mask.unsqueeze(1) & mask.unsqueeze(0) & (target.unsqueeze(1) == target.unsqueeze(0))
+    sibling &= index.unsqueeze(1) != index.unsqueeze(0)  # [i, j]: j is another correction of i's target
+    own, other = v.unsqueeze(-1), v.unsqueeze(-2)  # [B, i, 1], [B, 1, j]
+    earlier = (index.unsqueeze(0) < index.unsqueeze(1)).unsqueeze(0)  # [1, i, j]: j before i
+    beats = torch.where(earlier, own > other, own >= other)
+    return (beats | ~sibling.unsqueeze(0)).all(-1)

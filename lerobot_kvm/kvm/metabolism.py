@@ -1,9 +1,12 @@
 """Knowledge-base metabolism (paper §3.2, App. A.1, eqs. 7-8): FCRNC and SRNC per skill, pruning.
 
-An interaction is one attempt. For every skill proposed by the CL core in that attempt (a candidate at some
-step), the attempt's outcome and whether the KVM suppressed the skill (min_t v_t < tau_v) are counted in the
-slot of the attempt's task. Only the N most recent new tasks have slots (a sliding window; a new task evicts
-the oldest slot). FCRNC_i = failures / proposals and SRNC_i = suppressions / proposals over the window.
+An interaction is one attempt. For the skill the CL core proposed in that attempt (the one it relied on: the
+largest share of the CODA prompt before any KVM re-weighting, see `online.apply_feedback`), the attempt's
+outcome and whether the KVM suppressed the skill (min_t v_t < tau_v) are counted in the slot of the attempt's
+task. Skills that merely touched the prompt are not charged: a suite whose challenges fail by design would
+otherwise retire every broadly relevant skill within one window. Only the N most recent new tasks have slots (a
+sliding window; a new task evicts the oldest slot). FCRNC_i = failures / proposals and SRNC_i = suppressions /
+proposals over the window.
 
 A skill whose FCRNC or SRNC is above the threshold while the window is full (N new tasks seen) and it was
 proposed at least `min_interactions` times is pruned: deactivated (weight 0 in the fused prompt, no longer a

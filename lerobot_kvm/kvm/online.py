@@ -3,7 +3,8 @@
 `apply_feedback(policy, outcome, trace, demonstration, gradient_steps)` is what `policy.kvm_feedback(...)` runs
 after an attempt:
 
-* always: the attempt is one interaction of the knowledge-base metabolism (eqs. 7-8; pruning check).
+* always: the attempt is one interaction of the knowledge-base metabolism (eqs. 7-8; pruning check) for the
+  skill the CL core proposed (the culprit rule below, applied whatever the outcome).
 * failure: the culprit (minimal counterfactual: the skill that carried the largest share of the fused prompt
   over the last K steps) and the failure context (steps outside the safe experience, sigma_c^2 > tau, plus the
   last K steps) form a low-confidence hypothesis, or add evidence to a matching one. The failure context paired
@@ -277,8 +278,11 @@ def apply_feedback(
     share = (w_used * alphas).abs()
     dominant = share.argmax(-1)
 
+    # The skill the CL core proposed for this interaction: the culprit rule, whatever the outcome. Charging every
+    # candidate instead would retire each broadly relevant skill for failures it barely touched.
+    proposed = culprit_skill(relevance, cfg.fail_context_steps)
     task_name = task or tasks[0]
-    kvm.metabolism.record(task_name, candidate.any(0), failed, intervention.any(0))
+    kvm.metabolism.record(task_name, torch.arange(n_skills, device=device) == proposed, failed, intervention.any(0))
     report: dict[str, Any] = {
         "outcome": outcome,
         "task": task_name,
@@ -295,7 +299,7 @@ def apply_feedback(
 
     if failed:
         k = cfg.fail_context_steps
-        culprit = culprit_skill(relevance, k)
+        culprit = proposed
         context = sigma2 > tau
         context[-k:] = True
         context &= ~kvm.known_safe(c_raw, culprit)

@@ -146,7 +146,7 @@ class KnowledgeValidityModule(nn.Module):
         v = torch.where(ok, v, torch.zeros_like(v))
         if corrections is None or alphas is None:
             return v
-        return torch.where(ok, correction_validity(v, corrections, alphas, self.config.tau_high), 0.0)
+        return torch.where(ok, correction_validity(v, corrections, alphas, self.config.tau_high, active), 0.0)
 
     def threshold(self) -> Tensor:
         return self.gate.threshold(self.encoder, self.gate_memory)
@@ -218,7 +218,7 @@ class KnowledgeValidityModule(nn.Module):
         v = torch.where(off, torch.zeros_like(v), v)
         if corrections is not None:
             alphas = alphas() if callable(alphas) else alphas
-            v = torch.where(off, 0.0, correction_validity(v, corrections, alphas, cfg.tau_high))
+            v = torch.where(off, 0.0, correction_validity(v, corrections, alphas, cfg.tau_high, active))
         # The default fusion scales each skill by v alone, so the relevance stays lazy (telemetry may ask for it).
         if cfg.fusion_renormalize:
             alphas = alphas() if callable(alphas) else alphas

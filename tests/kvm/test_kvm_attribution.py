@@ -235,6 +235,9 @@ def test_chronic_failures_prune_a_skill_which_stays_recoverable(make_policy, att
         for i in range(5)
     ]
     assert all(r["pruned"] == [] for r in reports[:4])  # the window of 5 new tasks is not full yet
+    # each interaction charges the one skill the core proposed (the culprit), not every candidate
+    proposed = policy.kvm.metabolism.proposed.sum(-1)[:2].tolist()
+    assert proposed == [sum(r["culprit"] == i for r in reports) for i in range(2)] and sum(proposed) == 5
     pruned = reports[-1]["pruned"]
     fcrnc = reports[-1]["fcrnc"]
     assert pruned and all(fcrnc[i] > 0.8 for i in pruned)

@@ -133,6 +133,17 @@ def test_a_correction_is_valid_at_least_where_the_skill_it_corrects_is_not_and_i
     assert correction_validity(v, None, alphas) is v
 
 
+def test_of_several_corrections_of_one_skill_only_the_most_valid_inherits_and_a_pruned_skill_passes_nothing() -> None:
+    # skills 2 and 3 both correct skill 0 (made in two different contexts); skill 0 is relied on in every row
+    corrections = (torch.tensor([False, False, True, True]), torch.tensor([0, 1, 0, 0]))
+    alphas = torch.tensor([[2.0, 1.0, 1.0, 1.0]]).expand(3, -1)
+    v = torch.tensor([[0.02, 0.9, 0.1, 0.3], [0.02, 0.9, 0.4, 0.2], [0.02, 0.9, 0.1, 0.1]])
+    expected = torch.tensor([[0.02, 0.9, 0.1, 0.98], [0.02, 0.9, 0.98, 0.2], [0.02, 0.9, 0.98, 0.1]])
+    torch.testing.assert_close(correction_validity(v, corrections, alphas, necessity=0.8), expected)
+    pruned_0 = torch.tensor([False, True, True, True])
+    torch.testing.assert_close(correction_validity(v, corrections, alphas, 0.8, pruned_0), v)
+
+
 def test_eq3_fused_prompt_is_the_weighted_sum_of_skill_contributions() -> None:
     torch.manual_seed(0)
     pool = CodaPromptPool(n_layers=1, pool_size=6, n_tasks=3, prompt_length=2, dim_model=4, query_dim=8)
