@@ -3,10 +3,11 @@
 An interaction is one attempt. For the skill the CL core proposed in that attempt (the one it relied on: the
 largest share of the CODA prompt before any KVM re-weighting, see `online.apply_feedback`), the attempt's
 outcome and whether the KVM suppressed the skill (min_t v_t < tau_v) are counted in the slot of the attempt's
-task. Skills that merely touched the prompt are not charged: a suite whose challenges fail by design would
-otherwise retire every broadly relevant skill within one window. Only the N most recent new tasks have slots (a
-sliding window; a new task evicts the oldest slot). FCRNC_i = failures / proposals and SRNC_i = suppressions /
-proposals over the window.
+task; a failure counts as the skill's contribution only where the KVM had not suppressed it (a suppressed
+skill's interaction is SRNC's to count). Skills that merely touched the prompt are not charged: a suite whose
+challenges fail by design would otherwise retire every broadly relevant skill within one window. Only the N most
+recent new tasks have slots (a sliding window; a new task evicts the oldest slot). FCRNC_i = failures /
+proposals and SRNC_i = suppressions / proposals over the window.
 
 A skill whose FCRNC or SRNC is above the threshold while the window is full (N new tasks seen) and it was
 proposed at least `min_interactions` times is pruned: deactivated (weight 0 in the fused prompt, no longer a
@@ -73,9 +74,10 @@ class SkillMetabolism(nn.Module):
         slot = self._slot(task)
         s = proposed.shape[0]
         p = proposed.to(self.proposed.device, torch.int64)
+        q = suppressed.to(self.proposed.device, torch.int64)
         self.proposed[:s, slot] += p
-        self.failed[:s, slot] += p * int(failed)
-        self.suppressed[:s, slot] += p * suppressed.to(self.proposed.device, torch.int64)
+        self.failed[:s, slot] += p * (1 - q) * int(failed)
+        self.suppressed[:s, slot] += p * q
 
     def fcrnc(self) -> Tensor:
         return fcrnc(self.failed, self.proposed)

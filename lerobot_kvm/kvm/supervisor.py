@@ -261,20 +261,30 @@ class KnowledgeValidityModule(nn.Module):
         return buffer.data[idx], buffer.skill[idx], buffer.flags[idx]
 
     def loss_terms(
-        self, safe_c: Tensor, safe_s: Tensor, routine: Tensor, fail_c: Tensor, fail_s: Tensor
+        self,
+        safe_c: Tensor,
+        safe_s: Tensor,
+        routine: Tensor,
+        fail_c: Tensor,
+        fail_s: Tensor,
+        code_from_recon_only: bool = False,
     ) -> tuple[Tensor, dict[str, Tensor], Tensor]:
         """recon + L_contrast + lambda * L_energy + BCE on one set of safe and hazardous (context, skill) pairs.
 
-        Returns the loss, its metrics and the safe samples' energies (detached)."""
+        `code_from_recon_only`: E_c learns from the reconstruction alone; the contrastive and energy terms train
+        the joint feature and the energy model. Returns the loss, its metrics and the safe samples' energies
+        (detached)."""
         cfg = self.config
         mu_s, parts_s, _ = self._encode_parts(safe_c)
+        if code_from_recon_only:
+            mu_s = mu_s.detach()
         h_s = self.joint(mu_s, safe_s)
         e_s = self.energy(h_s)
         zero = safe_c.new_zeros(())
         recon = self.encoder.recon_loss(parts_s[routine]).mean() if bool(routine.any()) else zero
         if len(fail_c):
             mu_f, _, _ = self._encode_parts(fail_c)
-            h_f = self.joint(mu_f, fail_s)
+            h_f = self.joint(mu_f.detach() if code_from_recon_only else mu_f, fail_s)
             e_f = self.energy(h_f)
         else:
             h_f = h_s[:0]
@@ -391,7 +401,10 @@ class KnowledgeValidityModule(nn.Module):
         """A fixed budget of gradient steps on the KVM (E_c, join, energy model, classifier).
 
         Each step mixes the fresh samples of this feedback (half of each side) with replay from the memories,
-        so what was safe stays safe; cross-skill and synthetic negatives are added as offline.
+        so what was safe stays safe; cross-skill and synthetic negatives are added as offline. E_c learns only
+        its reconstruction here: a feedback's few contexts (for a knowledge gap, the failed ones are safe for the
+        new skill and hazardous for its culprit) would otherwise pull the codes, and with them the residual the
+        smart gate reads, away from the rest of the safe experience, and routine contexts would open the gate.
         """
         cfg = self.config
         batch = batch or cfg.feedback_batch
@@ -438,7 +451,9 @@ class KnowledgeValidityModule(nn.Module):
                 neg_c, neg_s = self.negatives_for(safe_c, safe_s, active)
                 fparts_c.append(neg_c)
                 fparts_s.append(neg_s)
-                loss, metrics, _ = self.loss_terms(safe_c, safe_s, routine, torch.cat(fparts_c), torch.cat(fparts_s))
+                loss, metrics, _ = self.loss_terms(
+                    safe_c, safe_s, routine, torch.cat(fparts_c), torch.cat(fparts_s), code_from_recon_only=True
+                )
                 optimizer.zero_grad()
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(params, 10.0)

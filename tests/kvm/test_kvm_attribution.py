@@ -139,8 +139,14 @@ def test_a_failure_without_a_strong_alternative_seeds_a_correcting_skill_from_it
     policy = make_policy()  # one skill: nothing else could take over once it is suppressed
     backbone = {k: v.clone() for k, v in policy.backbone.state_dict().items()}
     old_skill = {k: v.clone() for k, v in policy.pool.tasks[0].state_dict().items()}
+    encoder = {k: v.clone() for k, v in policy.kvm.encoder.state_dict().items()}
+    energy = {k: v.clone() for k, v in policy.kvm.energy.state_dict().items()}
     demo = _demonstration(policy, make_batch)
     report = policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6), demonstration=demo, gradient_steps=2)
+    # online, E_c learns from routine reconstruction only (there is none here): the failed contexts, safe for the
+    # correction and hazardous for the culprit, move the energy model but not the codes the gate reads
+    assert all(torch.equal(v, encoder[k]) for k, v in policy.kvm.encoder.state_dict().items())
+    assert any(not torch.equal(v, energy[k]) for k, v in policy.kvm.energy.state_dict().items())
     new = report["new_skill"]
     assert new["created"] and new["index"] == 1 and policy.n_skills == 2 and policy.skills[1].gated
     assert report["culprit"] == 0 and report["demo_skill"] == 1 and policy.skills[1].corrects == 0

@@ -203,10 +203,11 @@ def test_eq7_eq8_over_a_sliding_window_of_new_tasks() -> None:
     meta.record("task a", p, failed=True, suppressed=torch.tensor([True, False]))
     meta.record("task a", torch.tensor([True, False]), failed=False, suppressed=torch.tensor([False, False]))
     meta.record("task b", p, failed=False, suppressed=torch.tensor([False, True]))
-    # skill 0: 3 proposals, 1 failure, 1 suppression; skill 1: 2 proposals, 1 failure, 1 suppression
-    torch.testing.assert_close(meta.fcrnc(), torch.tensor([1 / 3, 1 / 2]))
+    # skill 0: 3 proposals, 1 suppression (its failure there is the suppression's, not its contribution);
+    # skill 1: 2 proposals, 1 failure in force, 1 suppression
+    torch.testing.assert_close(meta.fcrnc(), torch.tensor([0.0, 1 / 2]))
     torch.testing.assert_close(meta.srnc(), torch.tensor([1 / 3, 1 / 2]))
-    meta.record("task c", torch.tensor([True, False]), failed=True, suppressed=torch.tensor([True, False]))
-    # task a left the window of the 2 most recent new tasks: skill 0 has b (ok) and c (failed, suppressed)
+    meta.record("task c", torch.tensor([True, False]), failed=True, suppressed=torch.tensor([False, False]))
+    # task a left the window of the 2 most recent new tasks: skill 0 has b (ok) and c (failed in force)
     torch.testing.assert_close(meta.fcrnc(), torch.tensor([1 / 2, 0.0]))
-    torch.testing.assert_close(meta.srnc(), torch.tensor([1 / 2, 1.0]))
+    torch.testing.assert_close(meta.srnc(), torch.tensor([0.0, 1.0]))
