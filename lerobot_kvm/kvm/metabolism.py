@@ -9,9 +9,12 @@ challenges fail by design would otherwise retire every broadly relevant skill wi
 recent new tasks have slots (a sliding window; a new task evicts the oldest slot). FCRNC_i = failures /
 proposals and SRNC_i = suppressions / proposals over the window.
 
-A skill whose FCRNC or SRNC is above the threshold while the window is full (N new tasks seen) and it was
-proposed at least `min_interactions` times is pruned: deactivated (weight 0 in the fused prompt, no longer a
-candidate), never deleted from the checkpoint, and restorable.
+A skill is pruned when its FCRNC or SRNC *remains* above the threshold over a sliding window: above it (with
+the window full and at least `min_interactions` proposals in it) at each of the last N arrivals of a new task,
+and still now. One window above the threshold is not enough: a skill shared by many tasks (a pretraining skill)
+meets a run of new contexts that its knowledge does not fit, and suppression, not retirement, is the answer
+while the skill still serves its routine contexts. Pruning deactivates the skill (weight 0 in the fused
+prompt, no longer a candidate); it is never deleted from the checkpoint, and restorable.
 """
 
 import hashlib
@@ -51,6 +54,8 @@ class SkillMetabolism(nn.Module):
         self.register_buffer("failed", torch.zeros(max_skills, window, dtype=torch.int64))
         self.register_buffer("suppressed", torch.zeros(max_skills, window, dtype=torch.int64))
         self.register_buffer("pruned", torch.zeros(max_skills, dtype=torch.int64))
+        # consecutive new-task arrivals at which the skill was above the threshold
+        self.register_buffer("streak", torch.zeros(max_skills, dtype=torch.int64))
         self._active: dict[int, tuple[Tensor, bool]] = {}  # runtime cache, cleared whenever `pruned` changes
         self.register_load_state_dict_post_hook(lambda module, _keys: module._active.clear())
 
@@ -60,6 +65,8 @@ class SkillMetabolism(nn.Module):
         hit = torch.nonzero(self.task_keys == key).flatten()
         if len(hit):
             return int(hit[0])
+        above = self._above()
+        self.streak.copy_(torch.where(above, self.streak + 1, torch.zeros_like(self.streak)))
         slot = int(self.tasks_seen.item()) % self.window
         self.task_keys[slot] = key
         self.proposed[:, slot] = 0
@@ -89,18 +96,20 @@ class SkillMetabolism(nn.Module):
     def window_full(self) -> bool:
         return int(self.tasks_seen.item()) >= self.window
 
+    def _above(self) -> Tensor:
+        """[max_skills] bool: FCRNC or SRNC above the threshold over a full window with enough proposals."""
+        if not self.window_full:
+            return torch.zeros_like(self.pruned, dtype=torch.bool)
+        enough = self.proposed.sum(-1) >= self.min_interactions
+        return enough & ((self.fcrnc() > self.threshold) | (self.srnc() > self.threshold))
+
     @torch.no_grad()
     def check_prune(self, n_skills: int) -> list[int]:
-        """Prune (and return) skills whose FCRNC or SRNC stays above the threshold over a full window."""
-        if not self.window_full:
-            return []
-        f, s = self.fcrnc(), self.srnc()
-        enough = self.proposed.sum(-1) >= self.min_interactions
-        newly = []
-        for i in range(n_skills):
-            if not self.pruned[i] and enough[i] and (f[i] > self.threshold or s[i] > self.threshold):
-                self.prune(i)
-                newly.append(i)
+        """Prune (and return) skills whose FCRNC or SRNC remains above the threshold over the sliding window."""
+        remains = self._above() & (self.streak >= self.window) & (self.pruned == 0)
+        newly = torch.nonzero(remains[:n_skills]).flatten().tolist()
+        for i in newly:
+            self.prune(i)
         return newly
 
     @torch.no_grad()
@@ -111,6 +120,7 @@ class SkillMetabolism(nn.Module):
     @torch.no_grad()
     def restore(self, skill: int) -> None:
         self.pruned[skill] = 0
+        self.streak[skill] = 0
         self.proposed[skill] = 0
         self.failed[skill] = 0
         self.suppressed[skill] = 0

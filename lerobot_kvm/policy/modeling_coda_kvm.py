@@ -31,6 +31,8 @@ from .text_encoder import FrozenTextEncoder
 
 TASK_KEY = "task"
 ACTION_PAD_KEY = "action_is_pad"
+# State added after the checkpoint format was first released: a checkpoint without it loads with a fresh value.
+LATER_STATE = ("kvm.metabolism.streak",)
 # A fixed sentence whose embedding is stored with the weights: the query function must never change after
 # skills are learned, so a checkpoint refuses to run with an encoder that embeds it differently.
 _QUERY_PROBE = "pick up the object and place it on the target"
@@ -475,13 +477,16 @@ class CodaKvmPolicy(PreTrainedPolicy):
         cls, model: "CodaKvmPolicy", model_file: str, map_location: str, strict: bool
     ) -> "CodaKvmPolicy":
         """Always strict: a checkpoint with missing, unexpected or mis-shaped tensors is an error, not a
-        silently half-initialised policy.
+        silently half-initialised policy (except the `LATER_STATE` counters, absent from older checkpoints).
 
         Task-incremental learning: when the config names a skill the checkpoint does not have yet
         (`lerobot-train --policy.path=<previous> --policy.skill_name=<next task>`), that skill is begun after
         loading, in new CODA components; every earlier skill's rows stay frozen and bit-identical."""
         state = load_file(model_file, device=resolve_safetensors_device(map_location))
         expected = model.state_dict()
+        for key in LATER_STATE:  # older checkpoints: these start as in a fresh policy
+            if key in expected and key not in state:
+                state[key] = expected[key].clone()
         missing = sorted(set(expected) - set(state))
         unexpected = sorted(set(state) - set(expected))
         mismatched = [

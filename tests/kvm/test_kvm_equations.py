@@ -211,3 +211,19 @@ def test_eq7_eq8_over_a_sliding_window_of_new_tasks() -> None:
     # task a left the window of the 2 most recent new tasks: skill 0 has b (ok) and c (failed in force)
     torch.testing.assert_close(meta.fcrnc(), torch.tensor([1 / 2, 0.0]))
     torch.testing.assert_close(meta.srnc(), torch.tensor([0.0, 1.0]))
+
+
+def test_a_skill_is_pruned_only_when_its_rate_remains_above_the_threshold_over_the_window() -> None:
+    meta = SkillMetabolism(max_skills=1, window=2, threshold=0.8, min_interactions=1)
+    yes, no = torch.tensor([True]), torch.tensor([False])
+
+    def interact(task: str, failed: bool) -> list[int]:
+        meta.record(task, yes, failed=failed, suppressed=no)
+        return meta.check_prune(1)
+
+    # above from b on, but only one arrival (c) has seen it above when d succeeds: the rate falls to 1/2
+    assert [interact(t, f) for t, f in [("a", True), ("b", True), ("c", True), ("d", False)]] == [[]] * 4
+    assert int(meta.streak[0]) == 2 and meta.fcrnc()[0] == 0.5
+    # e's arrival finds c, d at 1/2: the streak restarts; failures at e, f, g, h bring it back to 2 at h
+    assert [interact(t, True) for t in "efg"] == [[]] * 3
+    assert interact("h", True) == [0] and int(meta.pruned[0]) == 1
