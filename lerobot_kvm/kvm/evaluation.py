@@ -192,3 +192,43 @@ def pretrain_kvm(
             loss.backward()
             optimizer.step()
     return info
+
+
+def recorded_frames(root: Any, repo_id: str, policy_config: Any) -> dict[str, Any]:
+    """Every frame of a small recorded dataset, with the action chunks `policy_config` trains on, decoded once
+    (a few hundred frames) so that training can draw batches without decoding video again."""
+    from lerobot.datasets.factory import resolve_delta_timestamps
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    meta = LeRobotDataset(repo_id, root=root).meta
+    dataset = LeRobotDataset(repo_id, root=root, delta_timestamps=resolve_delta_timestamps(policy_config, meta))
+    batches = list(torch.utils.data.DataLoader(dataset, batch_size=64, num_workers=0))
+    keys = [k for k, v in batches[0].items() if isinstance(v, Tensor)]
+    frames: dict[str, Any] = {k: torch.cat([b[k] for b in batches]) for k in keys}
+    frames["task"] = [t for b in batches for t in b["task"]]
+    frames["stats"] = meta.stats
+    return frames
+
+
+def train_on_frames(
+    policy: Any, frames: dict[str, Any], preprocessor: Processor, steps: int, where: Tensor, batch_size: int = 32
+) -> dict[str, float]:
+    """`steps` optimizer steps of `forward()` on the `where` frames, with the policy's own optimizer preset and
+    gradient clipping, as one `lerobot-train` stage runs them."""
+    rows = torch.nonzero(where).flatten()
+    optimizer = policy.config.get_optimizer_preset().build(policy.get_optim_params())
+    params = [p for group in policy.get_optim_params() for p in group["params"]]
+    info: dict[str, float] = {}
+    policy.train()
+    with torch.enable_grad():
+        for _ in range(steps):
+            idx = rows[torch.randint(len(rows), (batch_size,))]
+            batch = {k: v[idx] for k, v in frames.items() if isinstance(v, Tensor)}
+            batch["task"] = [frames["task"][i] for i in idx.tolist()]
+            loss, info = policy.forward(preprocessor(batch))
+            optimizer.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(params, policy.config.optimizer_grad_clip_norm)
+            optimizer.step()
+    policy.eval()
+    return info

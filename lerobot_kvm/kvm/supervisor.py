@@ -320,11 +320,16 @@ class KnowledgeValidityModule(nn.Module):
             partner[idx] = idx[torch.randperm(len(idx), device=skills.device)]
         return partner
 
-    def negatives_for(self, safe_c: Tensor, safe_s: Tensor, active: Tensor) -> tuple[Tensor, Tensor]:
-        """Non-benchmark negatives derived from safe samples: cross-skill pairs and synthetic perturbations."""
+    def negatives_for(self, safe_c: Tensor, safe_s: Tensor, active: Tensor, recorded: Tensor) -> tuple[Tensor, Tensor]:
+        """Non-benchmark negatives derived from safe samples: cross-skill pairs and synthetic perturbations.
+
+        Cross-skill pairs come only from the `recorded` [N] bool samples (dataset frames), where a context belongs
+        to the skill that was asked for. A success or a demonstration met online shows that its skill works there,
+        not that the others fail: a corrective demonstration senses what the culprit's own safe episodes sense until
+        the shift shows, and pairing it with the culprit would suppress the culprit in its prior contexts."""
         parts_c, parts_s = [], []
         if self.config.cross_skill_negatives:
-            c, s = self._cross_skill(safe_c, safe_s, active)
+            c, s = self._cross_skill(safe_c[recorded], safe_s[recorded], active)
             parts_c.append(c)
             parts_s.append(s)
         c, s = self._synthetic(safe_c, safe_s)
@@ -363,7 +368,9 @@ class KnowledgeValidityModule(nn.Module):
         safe_s = torch.cat([skills[safe], rs, os_, hs])
         n_new = int(safe.sum())
         routine = torch.cat([torch.ones(n_new, dtype=torch.int64, device=rf.device), rf, of, hf]) & ROUTINE > 0
-        neg_c, neg_s = self.negatives_for(safe_c, safe_s, active)
+        recorded = torch.ones(len(safe_s), dtype=torch.bool, device=safe_s.device)
+        recorded[n_new + len(rs) : n_new + len(rs) + len(os_)] = False
+        neg_c, neg_s = self.negatives_for(safe_c, safe_s, active, recorded)
         fc1, fs1, _ = self._replay(self.fail_offline, n if len(self.fail_offline) else 0)
         fc2, fs2, _ = self._replay(self.fail_online, n if len(self.fail_online) else 0)
         fail_c = torch.cat([c_raw[fail], fc1, fc2, neg_c])
@@ -418,23 +425,25 @@ class KnowledgeValidityModule(nn.Module):
         self.train()
         with torch.enable_grad(), torch.inference_mode(False):
             for _ in range(steps):
-                parts_c, parts_s, parts_r = [], [], []
+                parts_c, parts_s, parts_r, parts_rec = [], [], [], []
                 if len(safe_new_c):
                     i = torch.randint(len(safe_new_c), (half,), device=safe_new_c.device)
                     parts_c.append(safe_new_c[i])
                     parts_s.append(safe_new_s[i])
                     parts_r.append(torch.zeros(half, dtype=torch.bool, device=safe_new_c.device))
+                    parts_rec.append(parts_r[-1])
                 replay = half // 2 if len(safe_new_c) else half
-                for buffer, k in (
-                    (self.safe_offline, replay),
-                    (self.safe_online, replay),
-                    (self.safe_hard, cfg.hard_safe_replay),
+                for buffer, k, recorded in (
+                    (self.safe_offline, replay, True),
+                    (self.safe_online, replay, False),
+                    (self.safe_hard, cfg.hard_safe_replay, True),
                 ):
                     if len(buffer):
                         c, s, f = self._replay(buffer, k)
                         parts_c.append(c)
                         parts_s.append(s)
                         parts_r.append((f & ROUTINE) > 0)
+                        parts_rec.append(torch.full_like(parts_r[-1], recorded))
                 if not parts_c:
                     break
                 safe_c, safe_s, routine = torch.cat(parts_c), torch.cat(parts_s), torch.cat(parts_r)
@@ -448,7 +457,7 @@ class KnowledgeValidityModule(nn.Module):
                         c, s, _ = self._replay(buffer, half // 2)
                         fparts_c.append(c)
                         fparts_s.append(s)
-                neg_c, neg_s = self.negatives_for(safe_c, safe_s, active)
+                neg_c, neg_s = self.negatives_for(safe_c, safe_s, active, torch.cat(parts_rec))
                 fparts_c.append(neg_c)
                 fparts_s.append(neg_s)
                 loss, metrics, _ = self.loss_terms(

@@ -4,7 +4,10 @@ Protocol (offline data from the prior variant only: no frame of a shifted varian
 
 1. record `episodes` prior-skill and `episodes` safe-skill expert episodes on the prior variant (the prior skill
    under the variant's own instruction, the safe skill under the instruction that asks for it);
-2. learn the KVM offline: the prior skill's frames as skill 0, then the safe skill's frames as a new skill 1;
+2. a small `coda_kvm` policy learns them as a task sequence would: the prior skill's frames as skill 0, then the
+   safe skill's frames as a new skill 1 (backbone frozen). Its CL core trains through `forward()` (action loss
+   and query separation), because the KVM blames a failure on the skill the core relied on, so the prompt pool
+   must know which instruction each skill serves; the KVM learns offline from the same frames' contexts alone;
 3. one failed attempt (the prior skill's expert on the shifted variant) and its feedback with a corrective
    demonstration (the safe skill's expert on the shifted variant);
 4. on held-out seeds, v of each (skill, context) pair at every step.
@@ -36,7 +39,9 @@ from .evaluation import (
     expert_rollout,
     gate_rate,
     pretrain_kvm,
+    recorded_frames,
     trace_from_demonstration,
+    train_on_frames,
 )
 
 V_LOW = 0.1  # tau_v: below it the prior skill is suppressed
@@ -66,9 +71,11 @@ def _small_policy(root: Path, repo_id: str, skill_name: str) -> Any:
         n_layers=1,
         n_heads=2,
         dim_feedforward=64,
-        vision_channels=[8, 8],
+        vision_channels=[8, 8, 8, 8],
         prompt_layers=1,
+        query_separation_weight=1.0,  # as the benchmark's pools learn their skills
     )
+    config.kvm.learn_offline = False  # forward() trains the CL core; the KVM learns through `pretrain_kvm`
     return CodaKvmPolicy(config, dataset_meta=meta)
 
 
@@ -126,17 +133,22 @@ def check_validity(
         )
         record_dataset(spec, root, repo_id=repo_id, progress=False)
         policy = _small_policy(root, repo_id, info.prior_skill)
+        frames = recorded_frames(root, repo_id, policy.config)
         data = dataset_contexts(root, repo_id)
         labels = load_labels(root)["episodes"]
-    prior_episodes = {e["episode_index"] for e in labels if e["skill"] == info.prior_skill}
-    is_prior = torch.tensor([int(e) in prior_episodes for e in data["episode_index"]])
-    pretrain_kvm(policy, data, steps=offline_steps[0], where=is_prior)
-    policy.begin_new_skill(info.safe_skill)
-    pretrain_kvm(policy, data, steps=offline_steps[1], where=~is_prior)
-    policy.eval()
     from ..policy import make_coda_kvm_pre_post_processors
 
-    pre, _ = make_coda_kvm_pre_post_processors(policy.config, data["stats"])
+    pre, _ = make_coda_kvm_pre_post_processors(policy.config, frames["stats"])
+    prior_episodes = {e["episode_index"] for e in labels if e["skill"] == info.prior_skill}
+    is_prior = torch.tensor([int(e) in prior_episodes for e in frames["episode_index"]])
+    is_prior_context = torch.tensor([int(e) in prior_episodes for e in data["episode_index"]])
+    train_on_frames(policy, frames, pre, offline_steps[0], is_prior)
+    pretrain_kvm(policy, data, steps=offline_steps[0], where=is_prior_context)
+    policy.begin_new_skill(info.safe_skill)
+    policy.backbone.requires_grad_(False)  # as the sequences' later stages train (`--policy.train_backbone=false`)
+    train_on_frames(policy, frames, pre, offline_steps[1], ~is_prior)
+    pretrain_kvm(policy, data, steps=offline_steps[1], where=~is_prior_context)
+    policy.eval()
 
     env = KvmObsolescenceEnv(scenario_id, variant="shifted")
     base = seed + 10_000

@@ -281,3 +281,36 @@ def test_a_failure_that_looks_exactly_like_safe_experience_adds_no_negatives(mak
         policy.kvm.safe_offline.add(c_raw, skill=0, tag=episode)
     report = policy.kvm_feedback("catastrophe", trace, gradient_steps=0)
     assert report["culprit"] == 0 and report["negatives_added"] == 0
+
+
+def test_online_successes_and_demonstrations_are_never_another_skills_negatives(make_policy, make_kvm_config) -> None:
+    """A demonstration shows that its skill works in its contexts, not that the culprit fails there: before the
+    shift shows, those contexts are the culprit's own safe ones. Cross-skill negatives come from recorded frames."""
+    policy = make_policy(kvm=make_kvm_config(synthetic_negatives=False))
+    policy.begin_new_skill("gentle_grasp")
+    kvm = policy.kvm
+    dim = kvm.safe_offline.dim
+    recorded = torch.randn(6, dim)
+    kvm.safe_offline.add(recorded, skill=torch.tensor([0, 0, 0, 1, 1, 1]), tag=torch.arange(6))
+    demonstrated = torch.randn(5, dim) + 50.0  # far from every recorded frame: any copy of them is recognisable
+    kvm.add_safe(demonstrated, torch.ones(5, dtype=torch.long), routine=False, demo=True)
+    seen: list[tuple[torch.Tensor, torch.Tensor]] = []
+    loss_terms = kvm.loss_terms
+
+    def spy(safe_c, safe_s, routine, fail_c, fail_s, **kwargs):
+        seen.append((fail_c.detach().clone(), fail_s.clone()))
+        return loss_terms(safe_c, safe_s, routine, fail_c, fail_s, **kwargs)
+
+    kvm.loss_terms = spy
+    active = policy.kvm_active_skills()
+    kvm.train_online(5, active, (demonstrated, torch.ones(5, dtype=torch.long)), (recorded[:0], torch.zeros(0).long()))
+    fail_c = torch.cat([c for c, _ in seen])
+    fail_s = torch.cat([s for _, s in seen])
+    assert len(fail_c) and bool((fail_s == 0).any()) and bool((fail_s == 1).any())  # recorded frames still pair
+    assert (fail_c.abs().amax(1) < 25).all()  # no demonstrated context became a negative of any skill
+
+    c_raw = torch.cat([recorded, demonstrated])
+    skills = torch.tensor([0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1])
+    flags = torch.cat([torch.ones(6, dtype=torch.bool), torch.zeros(5, dtype=torch.bool)])
+    neg_c, neg_s = kvm.negatives_for(c_raw, skills, active, flags)
+    assert torch.equal(neg_c, recorded) and neg_s.tolist() == [1, 1, 1, 0, 0, 0]

@@ -2,8 +2,9 @@
 tau_v in the shifted context and stays above 0.9 in the prior-variant one; v separates hazardous from safe
 (skill, context) pairs on held-out episodes (AUROC >= 0.95); the gate stays mostly closed on routine episodes.
 
-The KVM learns offline from prior-variant contexts alone (the KVM term of forward(); no backbone training, which
-does not change v), exactly as `lerobot-kvm kvm-check` measures every scenario.
+A small policy learns the prior-variant data as a two-task sequence (its CL core through forward(), so that the
+failure is blamed on the skill the core relied on; the KVM from the same frames' contexts), exactly as
+`lerobot-kvm kvm-check` measures every scenario.
 """
 
 import pytest
