@@ -41,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
         held_out=args.held_out,
         seed=args.seed,
         offline_steps=(args.offline_steps, args.new_skill_steps),
+        online_encoder=args.online_encoder,
     )
     print(results_table(report["scenarios"], COLUMNS))
     print(LEGEND)
@@ -60,6 +61,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--held-out", type=int, default=4, help="held-out seeds per (variant, skill)")
     p.add_argument("--offline-steps", type=int, default=300, help="training steps on the prior skill (core, KVM)")
     p.add_argument("--new-skill-steps", type=int, default=200, help="training steps on the safe skill (core, KVM)")
+    p.add_argument(
+        "--online-encoder",
+        choices=("reconstruction", "joint"),
+        default="reconstruction",
+        help="what E_c learns from the feedback (policy.kvm.online_encoder)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", help="also write the full report to this JSON file")
     p.set_defaults(func=run)

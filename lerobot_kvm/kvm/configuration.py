@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 RISK_MODELS = ("energy", "bce")
 GAP_INITS = ("culprit", "orthogonal")
+ONLINE_ENCODERS = ("reconstruction", "joint")
 
 
 @dataclass
@@ -111,6 +112,11 @@ class KvmConfig:
     # corrects (the safe strategy is mostly a variation of the obsolete one, and the backbone knows that prompt);
     # "orthogonal" keeps CODA's Gram-Schmidt initialisation of a new task.
     gap_init: str = "culprit"
+    # What E_c learns from online feedback. "reconstruction": its reconstruction only, so that a feedback's few
+    # contexts cannot pull the codes (and the residual the smart gate reads) away from the safe experience.
+    # "joint": the contrastive and energy terms move the codes too, which separates a failure context from the
+    # culprit's safe contexts better (kvm-check) at the risk of moving the gate's threshold.
+    online_encoder: str = "reconstruction"
     focused_steps: int = 50  # gradient steps on a newly created skill only
     focused_lr: float = 3e-3
     focused_key_weight: float = 1.0  # pulls the new skill's CODA keys towards the seed queries
@@ -131,6 +137,8 @@ class KvmConfig:
             raise ValueError(f"`kvm.risk_model` must be one of {RISK_MODELS}, got {self.risk_model!r}")
         if self.gap_init not in GAP_INITS:
             raise ValueError(f"`kvm.gap_init` must be one of {GAP_INITS}, got {self.gap_init!r}")
+        if self.online_encoder not in ONLINE_ENCODERS:
+            raise ValueError(f"`kvm.online_encoder` must be one of {ONLINE_ENCODERS}, got {self.online_encoder!r}")
         positive_ints = {
             "latent_dim": self.latent_dim,
             "context_window": self.context_window,

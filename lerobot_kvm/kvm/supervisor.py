@@ -408,10 +408,11 @@ class KnowledgeValidityModule(nn.Module):
         """A fixed budget of gradient steps on the KVM (E_c, join, energy model, classifier).
 
         Each step mixes the fresh samples of this feedback (half of each side) with replay from the memories,
-        so what was safe stays safe; cross-skill and synthetic negatives are added as offline. E_c learns only
-        its reconstruction here: a feedback's few contexts (for a knowledge gap, the failed ones are safe for the
-        new skill and hazardous for its culprit) would otherwise pull the codes, and with them the residual the
-        smart gate reads, away from the rest of the safe experience, and routine contexts would open the gate.
+        so what was safe stays safe; cross-skill and synthetic negatives are added as offline. By default E_c
+        learns only its reconstruction here (`kvm.online_encoder`): a feedback's few contexts (for a knowledge gap,
+        the failed ones are safe for the new skill and hazardous for its culprit) would otherwise pull the codes,
+        and with them the residual the smart gate reads, away from the rest of the safe experience, and routine
+        contexts would open the gate.
         """
         cfg = self.config
         batch = batch or cfg.feedback_batch
@@ -461,7 +462,12 @@ class KnowledgeValidityModule(nn.Module):
                 fparts_c.append(neg_c)
                 fparts_s.append(neg_s)
                 loss, metrics, _ = self.loss_terms(
-                    safe_c, safe_s, routine, torch.cat(fparts_c), torch.cat(fparts_s), code_from_recon_only=True
+                    safe_c,
+                    safe_s,
+                    routine,
+                    torch.cat(fparts_c),
+                    torch.cat(fparts_s),
+                    code_from_recon_only=cfg.online_encoder == "reconstruction",
                 )
                 optimizer.zero_grad()
                 loss.backward()

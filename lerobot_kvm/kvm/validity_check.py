@@ -22,6 +22,7 @@ and the safe skill in the shifted context.
 """
 
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +53,7 @@ DIVERGENCE = 1e-3  # normalised context units: the shifted context departs from 
 CONTEXT = "observation.context"
 
 
-def _small_policy(root: Path, repo_id: str, skill_name: str) -> Any:
+def _small_policy(root: Path, repo_id: str, skill_name: str, online_encoder: str) -> Any:
     """A small `coda_kvm` policy for the dataset: the KVM's validity does not depend on the backbone's size."""
     from lerobot.configs.types import FeatureType
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
@@ -75,7 +76,8 @@ def _small_policy(root: Path, repo_id: str, skill_name: str) -> Any:
         prompt_layers=1,
         query_separation_weight=1.0,  # as the benchmark's pools learn their skills
     )
-    config.kvm.learn_offline = False  # forward() trains the CL core; the KVM learns through `pretrain_kvm`
+    # forward() trains the CL core; the KVM learns through `pretrain_kvm`
+    config.kvm = replace(config.kvm, learn_offline=False, online_encoder=online_encoder)
     return CodaKvmPolicy(config, dataset_meta=meta)
 
 
@@ -115,6 +117,7 @@ def check_validity(
     held_out: int = 4,
     seed: int = 0,
     offline_steps: tuple[int, int] = (300, 200),
+    online_encoder: str = "reconstruction",
     workdir: str | Path | None = None,
 ) -> dict[str, Any]:
     """One row of the validity report for `scenario_id` (see the module docstring for the protocol)."""
@@ -132,7 +135,7 @@ def check_validity(
             seed=seed,
         )
         record_dataset(spec, root, repo_id=repo_id, progress=False)
-        policy = _small_policy(root, repo_id, info.prior_skill)
+        policy = _small_policy(root, repo_id, info.prior_skill, online_encoder)
         frames = recorded_frames(root, repo_id, policy.config)
         data = dataset_contexts(root, repo_id)
         labels = load_labels(root)["episodes"]

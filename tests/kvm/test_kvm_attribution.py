@@ -133,6 +133,18 @@ def _demonstration(policy, make_batch, steps: int = 5, skill: str | None = None)
     return make_demonstration(per_step, skill=skill)
 
 
+def test_with_a_joint_online_encoder_the_failed_contexts_move_the_codes_too(
+    make_policy, make_kvm_config, make_batch, attempt
+) -> None:
+    policy = make_policy(kvm=make_kvm_config(online_encoder="joint"))
+    encoder = {k: v.clone() for k, v in policy.kvm.encoder.state_dict().items()}
+    demo = _demonstration(policy, make_batch)
+    policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6), demonstration=demo, gradient_steps=2)
+    assert any(not torch.equal(v, encoder[k]) for k, v in policy.kvm.encoder.state_dict().items())
+    with pytest.raises(ValueError, match="online_encoder"):
+        make_kvm_config(online_encoder="frozen")
+
+
 def test_a_failure_without_a_strong_alternative_seeds_a_correcting_skill_from_its_demonstration(
     make_policy, make_batch, attempt
 ) -> None:
