@@ -148,34 +148,10 @@ def gate_rate(policy: Any, demos: Sequence[dict[str, Any]]) -> float:
     return opened / max(total, 1)
 
 
-def dataset_contexts(root: Any, repo_id: str = "local/dataset") -> dict[str, Any]:
-    """The sensed contexts of a recorded dataset without decoding a single image: normalized with the dataset's
-    own statistics (MEAN_STD, as the policy's preprocessor does), with task strings and episode indices."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    ds = LeRobotDataset(repo_id, root=root)
-    cols = ds.hf_dataset.select_columns(["observation.context", "episode_index", "task_index"])
-
-    def column(name: str) -> Tensor:
-        values = cols[name]
-        return values if isinstance(values, Tensor) else torch.stack([torch.as_tensor(v) for v in values])
-
-    stats = ds.meta.stats["observation.context"]
-    mean = torch.as_tensor(stats["mean"], dtype=torch.float32)
-    std = torch.as_tensor(stats["std"], dtype=torch.float32)
-    task_of = {int(i): str(t) for t, i in zip(ds.meta.tasks.index, ds.meta.tasks["task_index"], strict=True)}
-    return {
-        "observation.context": (column("observation.context").float() - mean) / (std + 1e-8),
-        "episode_index": column("episode_index").reshape(-1).long(),
-        "task": [task_of[int(i)] for i in column("task_index").reshape(-1)],
-        "stats": ds.meta.stats,
-    }
-
-
 def pretrain_kvm(
     policy: Any, data: dict[str, Any], steps: int, batch_size: int = 32, lr: float = 1e-3, where: Tensor | None = None
 ) -> dict[str, float]:
-    """Offline KVM learning alone (the KVM term of `forward()`), on `dataset_contexts` rows (optionally a subset)."""
+    """Offline KVM learning alone (the KVM term of `forward()`), on `frame_contexts` rows (optionally a subset)."""
     rows = torch.nonzero(where).flatten() if where is not None else torch.arange(len(data["task"]))
     optimizer = torch.optim.AdamW(policy.kvm.learnable_parameters(), lr=lr, weight_decay=0.0)
     info: dict[str, float] = {}
@@ -210,14 +186,28 @@ def recorded_frames(root: Any, repo_id: str, policy_config: Any) -> dict[str, An
     return frames
 
 
+def frame_contexts(frames: dict[str, Any]) -> dict[str, Any]:
+    """The sensed contexts of `recorded_frames`, normalized with the dataset's statistics (MEAN_STD, as the
+    policy's preprocessor does), with their task strings and episode indices: what the KVM learns from offline."""
+    stats = frames["stats"]["observation.context"]
+    mean = torch.as_tensor(stats["mean"], dtype=torch.float32)
+    std = torch.as_tensor(stats["std"], dtype=torch.float32)
+    return {
+        "observation.context": (frames["observation.context"].float() - mean) / (std + 1e-8),
+        "episode_index": frames["episode_index"].reshape(-1).long(),
+        "task": frames["task"],
+    }
+
+
 def train_on_frames(
     policy: Any, frames: dict[str, Any], preprocessor: Processor, steps: int, where: Tensor, batch_size: int = 32
 ) -> dict[str, float]:
     """`steps` optimizer steps of `forward()` on the `where` frames, with the policy's own optimizer preset and
     gradient clipping, as one `lerobot-train` stage runs them."""
     rows = torch.nonzero(where).flatten()
-    optimizer = policy.config.get_optimizer_preset().build(policy.get_optim_params())
-    params = [p for group in policy.get_optim_params() for p in group["params"]]
+    groups = policy.get_optim_params()
+    params = [p for group in groups for p in group["params"]]
+    optimizer = policy.config.get_optimizer_preset().build(groups)
     info: dict[str, float] = {}
     policy.train()
     with torch.enable_grad():

@@ -432,7 +432,7 @@ class KnowledgeValidityModule(nn.Module):
                     parts_c.append(safe_new_c[i])
                     parts_s.append(safe_new_s[i])
                     parts_r.append(torch.zeros(half, dtype=torch.bool, device=safe_new_c.device))
-                    parts_rec.append(parts_r[-1])
+                    parts_rec.append(torch.zeros_like(parts_r[-1]))  # met online
                 replay = half // 2 if len(safe_new_c) else half
                 for buffer, k, recorded in (
                     (self.safe_offline, replay, True),

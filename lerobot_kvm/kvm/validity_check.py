@@ -36,8 +36,8 @@ from ..envs.scenario import SCENARIOS
 from .evaluation import (
     auroc,
     context_validity,
-    dataset_contexts,
     expert_rollout,
+    frame_contexts,
     gate_rate,
     pretrain_kvm,
     recorded_frames,
@@ -137,20 +137,19 @@ def check_validity(
         record_dataset(spec, root, repo_id=repo_id, progress=False)
         policy = _small_policy(root, repo_id, info.prior_skill, online_encoder)
         frames = recorded_frames(root, repo_id, policy.config)
-        data = dataset_contexts(root, repo_id)
         labels = load_labels(root)["episodes"]
     from ..policy import make_coda_kvm_pre_post_processors
 
     pre, _ = make_coda_kvm_pre_post_processors(policy.config, frames["stats"])
     prior_episodes = {e["episode_index"] for e in labels if e["skill"] == info.prior_skill}
     is_prior = torch.tensor([int(e) in prior_episodes for e in frames["episode_index"]])
-    is_prior_context = torch.tensor([int(e) in prior_episodes for e in data["episode_index"]])
+    data = frame_contexts(frames)
     train_on_frames(policy, frames, pre, offline_steps[0], is_prior)
-    pretrain_kvm(policy, data, steps=offline_steps[0], where=is_prior_context)
+    pretrain_kvm(policy, data, steps=offline_steps[0], where=is_prior)
     policy.begin_new_skill(info.safe_skill)
     policy.backbone.requires_grad_(False)  # as the sequences' later stages train (`--policy.train_backbone=false`)
     train_on_frames(policy, frames, pre, offline_steps[1], ~is_prior)
-    pretrain_kvm(policy, data, steps=offline_steps[1], where=~is_prior_context)
+    pretrain_kvm(policy, data, steps=offline_steps[1], where=~is_prior)
     policy.eval()
 
     env = KvmObsolescenceEnv(scenario_id, variant="shifted")
