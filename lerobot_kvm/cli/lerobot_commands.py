@@ -44,7 +44,10 @@ def train_command(
     launcher: Sequence[str] = (),
 ) -> list[str]:
     """`lerobot-train` on a local dataset (optionally a subset of its episodes); `policy` names the policy
-    (`--policy.type=...` or `--policy.path=...`), `launcher` prefixes a multi-process launcher."""
+    (`--policy.type=...` or `--policy.path=...`), `launcher` prefixes a multi-process launcher.
+
+    Under a launcher every rank loads its batches in its own process (no DataLoader worker): the ranks
+    already fill the cores, and a worker's shutdown at exit can leave a rank hanging after training."""
     launcher = [lerobot_bin(launcher[0]), *launcher[1:]] if launcher else []
     cmd = [*launcher, lerobot_bin("lerobot-train"), *policy]
     cmd += [
@@ -57,7 +60,7 @@ def train_command(
         f"--batch_size={batch_size}",
         f"--save_freq={steps}",
         f"--log_freq={max(1, min(100, steps // 4))}",
-        "--num_workers=1",
+        f"--num_workers={0 if launcher else 1}",
         f"--seed={seed}",
         "--wandb.enable=false",
     ]
