@@ -26,7 +26,7 @@ import json
 import shutil
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +35,7 @@ from tqdm import tqdm
 
 from ..envs.env import KvmObsolescenceEnv
 from ..envs.scenario import SCENARIOS
+from ..kvm.configuration import KvmConfig
 from ..kvm.evaluation import expert_rollout, run_attempt
 from ..kvm.online import chunk_targets, skill_by_name
 from ..kvm.validity_check import CONTEXT, shift_step
@@ -69,6 +70,9 @@ class BenchmarkConfig:
     overhead_steps: int = 100
     trace_plots: int = 6
     dataset_root: str | None = None  # overrides the sequence's dataset location
+    # KVM settings every validity method loads with, over the pool checkpoint's (a method's own switches win);
+    # shapes cannot change: a setting that resizes a network fails at loading
+    kvm: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in KVM_METHODS and m not in PEER_METHODS]
@@ -82,6 +86,10 @@ class BenchmarkConfig:
             raise ValueError(f"controls must be among {CONTROL_KINDS}, got {bad}")
         if self.runs < 1 or self.passes < 1 or self.feedback_steps < 0:
             raise ValueError("runs and passes must be >= 1 and feedback_steps >= 0")
+        unknown_kvm = sorted(set(self.kvm) - {f.name for f in fields(KvmConfig)})
+        if unknown_kvm:
+            raise ValueError(f"`kvm` has unknown settings {unknown_kvm}")
+        replace(KvmConfig(), **self.kvm)  # the KVM's own checks of the values
 
     @classmethod
     def from_json(cls, path: str | Path) -> "BenchmarkConfig":
@@ -94,17 +102,21 @@ def episode_seed(base: int, run: int, pass_: int, index: int, offset: int = 0) -
 
 
 # ---------------------------------------------------------------------------- policies
-def load_policy(method: str, checkpoint: Path, weights: Path | None = None) -> tuple[Any, Any, Any]:
+def load_policy(
+    method: str, checkpoint: Path, weights: Path | None = None, kvm: dict[str, Any] | None = None
+) -> tuple[Any, Any, Any]:
     """(policy, preprocessor, postprocessor) of a method: the policy from its pool checkpoint (or from `weights`,
-    the state a resumed run had reached), the processors always from the pool checkpoint."""
+    the state a resumed run had reached), the processors always from the pool checkpoint. `kvm`: settings over
+    the checkpoint's KVM config, under the method's own switches."""
+    from lerobot.configs.policies import PreTrainedConfig
     from lerobot.policies.factory import make_pre_post_processors
 
     if method in KVM_METHODS:
         from ..policy import CodaKvmPolicy
 
-        policy = CodaKvmPolicy.from_pretrained(weights or checkpoint)
-        for key, value in KVM_METHODS[method].items():
-            setattr(policy.config.kvm, key, value)
+        config = PreTrainedConfig.from_pretrained(weights or checkpoint)
+        config.kvm = replace(config.kvm, **{**(kvm or {}), **KVM_METHODS[method]})
+        policy = CodaKvmPolicy.from_pretrained(weights or checkpoint, config=config)
     else:
         from lerobot.policies.act.modeling_act import ACTPolicy
 
@@ -278,7 +290,7 @@ class Benchmark:
         done, out, weights = self._resume(partial)
         if out is None:
             out = {"method": method, "run": run, "records": [], "probes": [], "feedback": [], "wall_time_s": 0.0}
-        policy, pre, post = load_policy(method, checkpoint, weights)
+        policy, pre, post = load_policy(method, checkpoint, weights, cfg.kvm)
         if bar is not None:
             bar.update(done * len(cfg.scenarios))
         for pass_ in range(done + 1, cfg.passes + 1):

@@ -14,6 +14,7 @@ from lerobot_kvm.benchmark.protocol import (
     BenchmarkConfig,
     episode_fields,
     episode_seed,
+    load_policy,
     uncovered_scenarios,
 )
 from lerobot_kvm.benchmark.report import coverage_lines
@@ -37,6 +38,8 @@ def test_every_shipped_benchmark_config_loads_and_names_a_shipped_sequence():
         ({"scenarios": ["egg_vs_stone", "teapot"]}, "teapot"),
         ({"controls": ["prior", "sideways"]}, "sideways"),
         ({"passes": 0}, "passes"),
+        ({"kvm": {"tau_high": 0.8, "gate_k": 3.0, "warp": 1}}, "warp"),
+        ({"kvm": {"online_encoder": "both"}}, "online_encoder"),
     ],
 )
 def test_bad_benchmark_configs_are_rejected_with_the_offending_value(change, message):
@@ -185,3 +188,19 @@ def test_an_interrupted_run_resumes_at_its_next_pass_with_the_result_of_an_unint
         assert {r["pass"] for r in again["records"]} == {1, 2}
         assert summary(again) == summary(reference), method
         assert len(again["feedback"]) == len(reference["feedback"])
+
+
+@pytest.mark.slow
+def test_kvm_settings_reach_every_validity_method_under_its_own_switches(tiny_pool):
+    checkpoint = ContinualRun(SequenceConfig.from_json(CONFIGS / "cl_tiny.json"), tiny_pool["out"]).final_checkpoint(
+        "coda_kvm"
+    )
+    settings = {"online_encoder": "joint", "smart_gate": True}
+    kvm_on, _, _ = load_policy("coda_kvm", checkpoint)
+    assert kvm_on.config.kvm.online_encoder == "reconstruction"  # the pool's own setting
+    for method, switches in KVM_METHODS.items():
+        policy, _, _ = load_policy(method, checkpoint, kvm=settings)
+        assert policy.config.kvm.online_encoder == "joint", method
+        assert policy.config.kvm.smart_gate == switches.get("smart_gate", True), method
+        for key, value in switches.items():
+            assert getattr(policy.config.kvm, key) == value, (method, key)
