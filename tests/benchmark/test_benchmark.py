@@ -74,6 +74,23 @@ def test_full_benchmark_covers_the_whole_suite_with_every_method():
     assert {t.variant for t in [*sequence.tasks, *sequence.pretrain_tasks]} == {"prior"}
 
 
+def test_the_full_pool_never_learns_a_scenarios_alternative_inside_the_skill_it_replaces():
+    """Suppressing a scenario's prior skill must leave the alternative the pool learned for it (DESIGN §6)."""
+    sequence = SequenceConfig.from_json(CONFIGS / "cl_full.json")
+    skills = [sequence.pretrain_tasks, *([t] for t in sequence.tasks)]  # what each CODA skill learns
+
+    def learning(scenario: str, expert_skill: str) -> set[int]:
+        return {
+            i
+            for i, tasks in enumerate(skills)
+            if any((t.scenario, t.expert_skill) == (scenario, expert_skill) for t in tasks)
+        }
+
+    for scenario_id, scenario in SCENARIOS.items():
+        alternative = learning(scenario_id, scenario.info.safe_skill)
+        assert not alternative & learning(scenario_id, scenario.info.prior_skill), scenario_id
+
+
 def test_episode_fields_without_a_validity_trace():
     fields = episode_fields({"outcome": "failure", "steps": 7, "catastrophe_kind": "", "trace": None})
     assert fields["series"] is None and fields["gate_steps"] == 0 and fields["first_intervention"] is None
