@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 from ..envs.scenario import resolve_tasks
+from ..kvm.configuration import ONLINE_ENCODERS, KvmConfig
 from .table import results_table
 
 COLUMNS = (
@@ -63,8 +64,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--new-skill-steps", type=int, default=200, help="training steps on the safe skill (core, KVM)")
     p.add_argument(
         "--online-encoder",
-        choices=("reconstruction", "joint"),
-        default="reconstruction",
+        choices=ONLINE_ENCODERS,
+        default=KvmConfig.online_encoder,
         help="what E_c learns from the feedback (policy.kvm.online_encoder)",
     )
     p.add_argument("--seed", type=int, default=0)

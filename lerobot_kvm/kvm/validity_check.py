@@ -33,6 +33,7 @@ from tqdm import tqdm
 from ..datasets.recorder import RecordingSpec, RecordItem, load_labels, record_dataset
 from ..envs.env import KvmObsolescenceEnv
 from ..envs.scenario import SCENARIOS
+from .configuration import KvmConfig
 from .evaluation import (
     auroc,
     context_validity,
@@ -117,7 +118,7 @@ def check_validity(
     held_out: int = 4,
     seed: int = 0,
     offline_steps: tuple[int, int] = (300, 200),
-    online_encoder: str = "reconstruction",
+    online_encoder: str = KvmConfig.online_encoder,
     workdir: str | Path | None = None,
 ) -> dict[str, Any]:
     """One row of the validity report for `scenario_id` (see the module docstring for the protocol)."""
