@@ -429,6 +429,7 @@ class Benchmark:
             return {
                 "gradient_steps": steps,
                 "culprit": report.get("culprit"),
+                "attribution": report.get("attribution"),
                 "hypothesis": report.get("hypothesis"),
                 "new_skill": report.get("new_skill"),
                 "confirmed": report.get("confirmed"),

@@ -1,14 +1,21 @@
 """Verification-based attribution and knowledge-gap confirmation (paper App. D).
 
-A failure forms a low-confidence hypothesis "skill i is risky in context C" (the culprit is the skill the CL
-core relied on most just before the failure, its largest share of the CODA prompt: the minimal counterfactual,
-removing it is the smallest change that takes that knowledge out. The share is taken before the KVM's
-re-weighting, so a failure while the culprit was already suppressed counts against its hypothesis instead of
-passing the blame to whichever skills were left in force). Later attempts verify it: when the KVM suppresses skill i
-(v_i < tau_v) in a context similar to C and the attempt succeeds, the hypothesis's intervention counter is
-incremented (persistence). An intervention confirms the hypothesis when the counter exceeds N_p *and* the
-suppressed skill was a high-relevance option of the CL core (normalised alpha_i > tau_high: necessity). A failure
-while skill i was suppressed in such a context breaks the persistence (the counter restarts from 0).
+A failure forms a low-confidence hypothesis "skill i is risky in context C". The culprit proposed is the skill the
+CL core relied on most just before the failure, its largest share of the CODA prompt (`culprit_skill`). With a
+corrective demonstration it is verified by counterfactuals (`counterfactual_culprit`): each skill the CL core
+proposed is taken out of the prompt in turn, and another skill is blamed instead when its removal brings the
+policy's actions on the demonstration clearly closer to it, and clearly closer than the proposed skill's removal
+does. The largest share is often a skill learned later for the same scene, the very strategy the demonstration
+shows. The skill whose removal takes the actions furthest from the demonstration is the one that shows the safe
+strategy (`agreeing_skill`). Both read the prompt before the KVM's re-weighting, so a failure while the culprit
+was already suppressed counts against its hypothesis instead of passing the blame to whichever skills were left
+in force.
+
+Later attempts verify the hypothesis: when the KVM suppresses skill i (v_i < tau_v) in a context similar to C and
+the attempt succeeds, the hypothesis's intervention counter is incremented (persistence). An intervention confirms
+the hypothesis when the counter exceeds N_p *and* the suppressed skill was a high-relevance option of the CL core
+(normalised alpha_i > tau_high: necessity). A failure while skill i was suppressed in such a context breaks the
+persistence (the counter restarts from 0).
 
 Confirmed hypotheses make their failure contexts permanent h_fail negatives; if every alternative skill stayed
 weak (normalised alpha < gap_alpha) a knowledge gap is diagnosed and a new skill is created.
@@ -143,6 +150,30 @@ def culprit_skill(alphas: Tensor, last_k: int) -> int:
     contribution = alphas.abs()[-last_k:]
     share = contribution / contribution.sum(-1, keepdim=True).clamp_min(1e-8)
     return int(share.mean(0).argmax())
+
+
+def counterfactual_culprit(error: float, without: Tensor, candidates: Tensor, proposed: int, margin: float) -> int:
+    """The culprit verified by removals: the proposed skill (largest prompt share) stands unless taking another
+    candidate out of the prompt cuts the action error on the correction by more than `margin` * error, and by
+    that much more than taking the proposed skill out does.
+
+    error: the policy's action error on the corrective demonstration with every skill in force; without: [S] the
+    error with skill i taken out; candidates: [S] bool, the skills proposed (`proposed` among them)."""
+    gain = (error - without).masked_fill(~candidates, float("-inf"))
+    best = int(gain.argmax())
+    helps = float(gain[best]) > margin * error
+    return best if helps and float(gain[best] - gain[proposed]) > margin * error else proposed
+
+
+def agreeing_skill(error: float, without: Tensor, candidates: Tensor, culprit: int) -> int | None:
+    """The candidate other than the culprit whose removal takes the policy's actions furthest from the
+    correction: the skill that demonstrates the safe strategy (None: removing any of them helps or changes
+    nothing)."""
+    others = candidates.clone()
+    others[culprit] = False
+    loss = (without - error).masked_fill(~others, float("-inf"))
+    best = int(loss.argmax())
+    return best if bool(others[best]) and float(loss[best]) > 0 else None
 
 
 def knowledge_gap(relevance: Tensor, culprit: int, active: Tensor, gap_alpha: float) -> bool:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 RISK_MODELS = ("energy", "bce")
 GAP_INITS = ("culprit", "orthogonal")
 ONLINE_ENCODERS = ("reconstruction", "joint")
+ATTRIBUTIONS = ("counterfactual", "relevance")
 
 
 @dataclass
@@ -101,6 +102,12 @@ class KvmConfig:
 
     # ------------------------------------------------------------------ attribution (App. D)
     hypothesis_capacity: int = 64
+    # Who is blamed for a failure that comes with a corrective demonstration. "relevance": the skill with the
+    # largest share of the prompt (the rule without a demonstration). "counterfactual": that skill, unless taking
+    # another proposed skill out of the prompt cuts the policy's action error on the demonstration by more than
+    # `attribution_margin` of it, and by that much more than removing the largest share does.
+    attribution: str = "counterfactual"
+    attribution_margin: float = 0.1
     persistence: int = 3  # N_p: confirmed when the intervention counter exceeds N_p ...
     tau_high: float = 0.8  # ... and the intervention was necessary (normalised alpha_i > tau_high)
     similarity: float = 0.9  # cosine similarity of mu_c that makes a context "similar" to a hypothesis's
@@ -139,6 +146,8 @@ class KvmConfig:
             raise ValueError(f"`kvm.gap_init` must be one of {GAP_INITS}, got {self.gap_init!r}")
         if self.online_encoder not in ONLINE_ENCODERS:
             raise ValueError(f"`kvm.online_encoder` must be one of {ONLINE_ENCODERS}, got {self.online_encoder!r}")
+        if self.attribution not in ATTRIBUTIONS:
+            raise ValueError(f"`kvm.attribution` must be one of {ATTRIBUTIONS}, got {self.attribution!r}")
         positive_ints = {
             "latent_dim": self.latent_dim,
             "context_window": self.context_window,
@@ -202,6 +211,7 @@ class KvmConfig:
             "similarity": self.similarity,
             "prune_threshold": self.prune_threshold,
             "known_safe_quantile": self.known_safe_quantile,
+            "attribution_margin": self.attribution_margin,
         }
         for name, value in unit.items():
             if not 0.0 <= value <= 1.0:

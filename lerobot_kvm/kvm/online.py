@@ -34,7 +34,14 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from torch import Tensor
 
-from .attribution import OPEN, culprit_skill, knowledge_gap, normalised_relevance
+from .attribution import (
+    OPEN,
+    agreeing_skill,
+    counterfactual_culprit,
+    culprit_skill,
+    knowledge_gap,
+    normalised_relevance,
+)
 from .fusion import fuse_weights, plain_scale
 from .telemetry import KvmTrace
 
@@ -121,6 +128,59 @@ def _cat_frames(parts: list[dict[str, Any]]) -> dict[str, Any]:
     for k in parts[0]:
         out[k] = sum((p[k] for p in parts), []) if k == "task" else torch.cat([p[k] for p in parts])
     return out
+
+
+# ---------------------------------------------------------------------------- counterfactual attribution
+@torch.no_grad()
+def removal_errors(policy: "CodaKvmPolicy", frames: dict[str, Any], candidates: Tensor) -> tuple[float, Tensor]:
+    """The policy's action error on demonstration frames with every active skill in force (the CODA prompt before
+    the KVM's re-weighting), and [S] the error with each candidate taken out of the prompt (inf elsewhere).
+
+    The error is the mean squared error of the predicted chunks against the demonstrated ones (normalized
+    actions, padding excluded)."""
+    training = policy.training
+    device = policy.query_fingerprint.device
+    keys = (*policy.config.image_features, "observation.state", policy.config.context_key)
+    batch: dict[str, Any] = {k: frames[k].to(device) for k in keys}
+    batch["task"] = frames["task"]
+    target, pad = frames[ACTION].to(device), frames[ACTION_PAD].to(device)
+    kept = (~pad).sum(-1).clamp_min(1)
+    base = policy.kvm_active_skills().to(target.dtype).unsqueeze(0).expand(len(pad), -1)
+
+    def error(weights: Tensor) -> float:
+        chunk = policy.predict_action_chunk(batch, skill_weights=weights)
+        per_step = (chunk - target).pow(2).mean(-1).masked_fill(pad, 0.0)
+        return float((per_step.sum(-1) / kept).mean())
+
+    full = error(base)
+    without = torch.full((base.shape[1],), float("inf"), device=device)
+    for i in torch.nonzero(candidates).flatten().tolist():
+        weights = base.clone()
+        weights[:, i] = 0.0
+        without[i] = error(weights)
+    policy.train(training)
+    return full, without
+
+
+def _attribute(
+    policy: "CodaKvmPolicy", frames: dict[str, Any] | None, candidates: Tensor, proposed: int
+) -> dict[str, Any]:
+    """Who is blamed for a failure (see `kvm.attribution`) and which skill the demonstration shows, with the
+    evidence: {"rule", "culprit", "agrees", "error", "gain" (skill -> error cut by its removal)}."""
+    cfg = policy.config.kvm
+    if frames is None or cfg.attribution != "counterfactual":
+        return {"rule": "relevance", "culprit": proposed, "agrees": None}
+    candidates = candidates.clone()
+    candidates[proposed] = True
+    error, without = removal_errors(policy, frames, candidates)
+    culprit = counterfactual_culprit(error, without, candidates, proposed, cfg.attribution_margin)
+    return {
+        "rule": "relevance" if culprit == proposed else "counterfactual",
+        "culprit": culprit,
+        "agrees": agreeing_skill(error, without, candidates, culprit),
+        "error": error,
+        "gain": {int(i): error - float(without[i]) for i in torch.nonzero(candidates).flatten()},
+    }
 
 
 # ---------------------------------------------------------------------------- focused fine-tuning of a new skill
@@ -278,9 +338,14 @@ def apply_feedback(
     share = (w_used * alphas).abs()
     dominant = share.argmax(-1)
 
-    # The skill the CL core proposed for this interaction: the culprit rule, whatever the outcome. Charging every
-    # candidate instead would retire each broadly relevant skill for failures it barely touched.
+    # The skill the CL core proposed for this interaction: the culprit rule, whatever the outcome (a failure with a
+    # corrective demonstration verifies it, `_attribute`). Charging every candidate instead would retire each
+    # broadly relevant skill for failures it barely touched.
     proposed = culprit_skill(relevance, cfg.fail_context_steps)
+    frames = _demo_frames(policy, demonstration) if demonstration is not None else None
+    k = cfg.fail_context_steps
+    attribution = _attribute(policy, frames if failed else None, candidate[-k:].any(0), proposed)
+    proposed = attribution["culprit"]
     task_name = task or tasks[0]
     kvm.metabolism.record(task_name, torch.arange(n_skills, device=device) == proposed, failed, intervention.any(0))
     report: dict[str, Any] = {
@@ -298,7 +363,6 @@ def apply_feedback(
     similarity = _Similarity(kvm)
 
     if failed:
-        k = cfg.fail_context_steps
         culprit = proposed
         context = sigma2 > tau
         context[-k:] = True
@@ -320,8 +384,7 @@ def apply_feedback(
         safe_s: list[Tensor] = []
         demo_skill = None
         gap = None
-        if demonstration is not None:
-            frames = _demo_frames(policy, demonstration)
+        if frames is not None:
             named = skill_by_name(policy, demonstration.get("skill"))
             if cfg.gap_on_failure and steps and named is None:  # a demonstrated skill the pool has is no gap
                 gap = _gap_skill(policy, hypothesis_id, culprit, relevance[context], active, task_name)
@@ -335,6 +398,8 @@ def apply_feedback(
                 demo_skill = gap["index"]
             elif named is not None:
                 demo_skill = named
+            elif attribution["agrees"] is not None and bool(active[attribution["agrees"]]):
+                demo_skill = attribution["agrees"]
             else:
                 demo_skill = _demo_skill(d_rel, culprit, active)
             if demo_skill is not None:
@@ -357,6 +422,7 @@ def apply_feedback(
             report["new_skill"] = gap
         report.update(
             culprit=culprit,
+            attribution={k: v for k, v in attribution.items() if k != "culprit"},
             hypothesis=kvm.hypotheses.info(hypothesis_id),
             negatives_added=len(fails),
             positives_added=len(new_safe[0]),

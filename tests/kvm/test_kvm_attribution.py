@@ -8,6 +8,8 @@ from lerobot_kvm.kvm.attribution import (
     CONFIRMED,
     OPEN,
     HypothesisTable,
+    agreeing_skill,
+    counterfactual_culprit,
     culprit_skill,
     knowledge_gap,
     normalised_relevance,
@@ -72,6 +74,57 @@ def test_culprit_relevance_and_knowledge_gap() -> None:
     assert knowledge_gap(r[1:], culprit=1, active=active, gap_alpha=0.5)  # alternative 0 stays at 1/3
     assert not knowledge_gap(r[:1], culprit=1, active=active, gap_alpha=0.5)  # alternative 0 is strong there
     assert knowledge_gap(r, culprit=0, active=torch.tensor([True, False, False]), gap_alpha=0.5)  # no alternative
+
+
+def test_counterfactual_culprit_needs_a_margin_over_the_proposed_skills_removal() -> None:
+    # error 1.0 with every skill in force; removing skill 0 -> 0.95, 1 -> 1.30, 2 -> 0.70, 3 (not proposed) -> 0.1
+    without = torch.tensor([0.95, 1.30, 0.70, 0.10])
+    candidates = torch.tensor([True, True, True, False])
+    # gains 0.05, -0.30, 0.30: skill 2 beats the proposed skill 1 by 0.60 > 0.1 * 1.0
+    assert counterfactual_culprit(1.0, without, candidates, proposed=1, margin=0.1) == 2
+    # against proposed skill 0 the lead is 0.25: blamed at margin 0.2, not at margin 0.3
+    assert counterfactual_culprit(1.0, without, candidates, proposed=0, margin=0.2) == 2
+    assert counterfactual_culprit(1.0, without, candidates, proposed=0, margin=0.3) == 0
+    assert counterfactual_culprit(1.0, without, candidates, proposed=2, margin=0.0) == 2
+    # a removal that does not help by the margin blames nobody else, however much worse the proposed one's is
+    hurting = torch.tensor([1.05, 9.0, 1.02, 0.1])
+    assert counterfactual_culprit(1.0, hurting, candidates, proposed=1, margin=0.1) == 1
+    # the skill that shows the correction: its removal hurts most (skill 1, +0.30); none when removals only help
+    assert agreeing_skill(1.0, without, candidates, culprit=2) == 1
+    assert agreeing_skill(1.0, without, candidates, culprit=1) is None
+
+
+def test_a_demonstration_verifies_the_culprit_by_removing_each_proposed_skill(
+    make_policy, make_kvm_config, make_batch, attempt
+) -> None:
+    """The demonstration is exactly what the policy does without one skill: that skill is blamed, whatever its
+    share of the prompt, and the evidence is in the report."""
+    settings = {"candidate_min_alpha": 0.0, "gap_on_failure": False}
+    policy = make_policy(kvm=make_kvm_config(**settings), chunk_size=1, n_action_steps=1)
+    policy.begin_new_skill("gentle_grasp")
+    policy.begin_new_skill("slow_lift")
+    trace = attempt(policy, EGG, steps=6)
+    proposed = culprit_skill(policy.skill_relevance([EGG] * 6), last_k=policy.config.kvm.fail_context_steps)
+    blamed = (proposed + 1) % 3
+    weights = torch.ones(1, 3)
+    weights[0, blamed] = 0.0
+    steps = []
+    for t in range(5):
+        b = make_batch(policy.config, batch_size=1, task=EGG, seed=50 + t)
+        b["action"] = policy.predict_action_chunk(b, skill_weights=weights)[:, 0]
+        steps.append(b)
+    demo = make_demonstration(steps)
+    report = policy.kvm_feedback("catastrophe", trace, demonstration=demo, gradient_steps=0)
+    evidence = report["attribution"]
+    assert report["culprit"] == blamed and evidence["rule"] == "counterfactual"
+    assert evidence["gain"][blamed] == pytest.approx(evidence["error"], abs=1e-6)  # its removal is the demo
+    assert report["demo_skill"] == evidence["agrees"] != blamed
+    assert report["hypothesis"]["skill"] == blamed
+    policy.config.kvm.attribution = "relevance"
+    report = policy.kvm_feedback("catastrophe", trace, demonstration=demo, gradient_steps=0)
+    assert report["culprit"] == proposed and report["attribution"] == {"rule": "relevance", "agrees": None}
+    with pytest.raises(ValueError, match="attribution"):
+        make_kvm_config(attribution="oracle")
 
 
 def _force_suppression(trace, skill: int, value: float = 0.01) -> None:
