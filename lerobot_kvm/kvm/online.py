@@ -89,8 +89,13 @@ def chunk_targets(actions: Tensor, chunk: int) -> tuple[Tensor, Tensor]:
     return actions[idx.clamp(max=t_len - 1)], pad
 
 
+def _observation_keys(policy: "CodaKvmPolicy") -> tuple[str, ...]:
+    """The observation tensors the policy reads: what a seed frame or a demonstration step must carry."""
+    return (*policy.config.image_features, "observation.state", policy.config.context_key)
+
+
 def _demo_frames(policy: "CodaKvmPolicy", demo: dict[str, Any]) -> dict[str, Any]:
-    keys = (*policy.config.image_features, "observation.state", policy.config.context_key)
+    keys = _observation_keys(policy)
     missing = [k for k in (*keys, ACTION) if not isinstance(demo.get(k), Tensor)]
     if missing:
         raise ValueError(f"demonstration is missing tensors {missing}; it has keys {sorted(demo)}")
@@ -114,7 +119,7 @@ def _trace_frames(policy: "CodaKvmPolicy", trace: KvmTrace) -> dict[str, Any] | 
     """Seed frames (observations + the actions the policy executed) of a successful one-environment trace."""
     if not trace.observations or len(trace.observations) != len(trace):
         return None
-    keys = (*policy.config.image_features, "observation.state", policy.config.context_key)
+    keys = _observation_keys(policy)
     if not all(k in trace.observations[0] for k in keys):
         return None
     frames: dict[str, Any] = {k: torch.cat([o[k] for o in trace.observations]) for k in keys}
@@ -140,7 +145,7 @@ def removal_errors(policy: "CodaKvmPolicy", frames: dict[str, Any], candidates: 
     actions, padding excluded)."""
     training = policy.training
     device = policy.query_fingerprint.device
-    keys = (*policy.config.image_features, "observation.state", policy.config.context_key)
+    keys = _observation_keys(policy)
     batch: dict[str, Any] = {k: frames[k].to(device) for k in keys}
     batch["task"] = frames["task"]
     target, pad = frames[ACTION].to(device), frames[ACTION_PAD].to(device)
