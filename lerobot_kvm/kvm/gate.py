@@ -10,9 +10,18 @@ references are re-encoded: the mean residual of each modality there is the scale
 `context_encoder`), and mean/std of the resulting sigma^2 give tau. So tau always describes the safe experience as
 the encoder sees it now; the scales and mean/std/tau are persistent buffers. With fewer than `min_count`
 interactions there are no statistics yet and the gate stays open (assess always).
+
+A failure makes its context uncertain (paper Fig. 2, phase 3): with failure contexts given, the gate also opens
+where the code mu_c is similar to one of them (centred cosine similarity, `kvm.similarity`, the test that
+matches a context to a failure hypothesis). A failure's context often reconstructs as well as the safe experience
+(the egg senses like the stone until it cracks), and a closed gate would keep both the energy model's suppression
+and a correction skill out of the very contexts the failure taught about.
 """
 
+from collections.abc import Callable
+
 import torch
+import torch.nn.functional as F  # noqa: N812
 from torch import Tensor, nn
 
 from .context_encoder import ContextEncoder
@@ -27,7 +36,16 @@ def adaptive_threshold(sigma2: Tensor, k: float) -> tuple[Tensor, Tensor, Tensor
 
 
 class SmartGate(nn.Module):
-    def __init__(self, window: int, raw_dim: int, k: float, min_count: int, n_parts: int = 2) -> None:
+    def __init__(
+        self,
+        window: int,
+        raw_dim: int,
+        k: float,
+        min_count: int,
+        n_parts: int = 2,
+        failures: Callable[[], Tensor] | None = None,
+        similarity: float = 0.9,
+    ) -> None:
         super().__init__()
         self.k = k
         self.min_count = min_count
@@ -37,6 +55,10 @@ class SmartGate(nn.Module):
         self.stale = True  # runtime only: stats must be recomputed before the next decision
         self.dim_weights: Tensor | None = None  # runtime cache: sigma_c^2 = squared residual @ dim_weights
         self.tau_value = float("-inf")  # runtime cache of stats[0] as a Python float
+        self.failures = failures  # gives the contexts of failures met online, where the gate opens too
+        self.similarity = similarity
+        self.center: Tensor | None = None  # runtime cache: mean code of the safe references
+        self.fail_codes: Tensor | None = None  # runtime cache: the failures' centred unit codes
         self.register_load_state_dict_post_hook(SmartGate._after_load)
 
     @staticmethod
@@ -64,11 +86,16 @@ class SmartGate(nn.Module):
     def refresh(self, encoder: ContextEncoder, memory: SampleBuffer | None = None) -> Tensor:
         """Recompute the residual scales and (tau, mean, std) from the safe references with the current encoder."""
         reference = self.reference(memory)
+        self.center, self.fail_codes = None, None
         if len(reference) < max(self.min_count, 1):
             self.scale.fill_(1.0)
             stats = torch.tensor([float("-inf"), 0.0, 0.0])
         else:
-            _, parts = encoder(reference)
+            mu, parts = encoder(reference)
+            self.center = mu.mean(0)
+            failures = self.failures() if self.failures is not None else mu[:0]
+            if len(failures):
+                self.fail_codes = F.normalize(encoder(failures)[0] - self.center, dim=-1)
             self.scale.copy_(parts.mean(0).clamp_min(1e-6))
             tau, mean, std = adaptive_threshold(encoder.sigma2(parts, self.scale), self.k)
             stats = torch.stack([tau, mean, std])
@@ -77,6 +104,22 @@ class SmartGate(nn.Module):
         self.tau_value = float(self.stats[0])
         self.stale = False
         return self.stats
+
+    def similar(self, mu: Tensor, ref: Tensor) -> Tensor:
+        """[B] bool: codes mu [B, L] similar to at least one of the codes ref [M, L] (call after ensure_fresh).
+
+        Cosine similarity about the safe references' mean code: raw codes all point roughly the same way."""
+        center = self.center if self.center is not None else ref.mean(0)
+        return self._similar_to_unit(mu, F.normalize(ref - center, dim=-1), center)
+
+    def near_failure(self, mu: Tensor) -> Tensor | None:
+        """[B] bool: codes similar to a failure's context (None when there is none; call after ensure_fresh)."""
+        if self.fail_codes is None or self.center is None:
+            return None
+        return self._similar_to_unit(mu, self.fail_codes, self.center)
+
+    def _similar_to_unit(self, mu: Tensor, unit_ref: Tensor, center: Tensor) -> Tensor:
+        return (F.normalize(mu - center, dim=-1) @ unit_ref.T).amax(-1) >= self.similarity
 
     def ensure_fresh(self, encoder: ContextEncoder, memory: SampleBuffer | None = None) -> None:
         if self.stale:

@@ -281,27 +281,14 @@ def _stack_used(trace: KvmTrace, n_skills: int) -> tuple[Tensor, Tensor, Tensor]
     return v, w, inter
 
 
-class _Similarity:
-    """Centred cosine similarity of context codes to a hypothesis's contexts (its prototype and negatives)."""
-
-    def __init__(self, kvm: Any) -> None:
-        self.kvm = kvm
-        with torch.no_grad():
-            ref = kvm.gate.window if len(kvm.gate.window) else kvm.safe_offline
-            idx = ref.filled()
-            self.center = kvm.encode(ref.data[idx])[0].mean(0) if len(idx) else None
-
-    @torch.no_grad()
-    def __call__(self, mu: Tensor, hypothesis_id: int) -> Tensor:
-        kvm = self.kvm
-        table = kvm.hypotheses
-        rows = [table.prototype[table.row(hypothesis_id)].unsqueeze(0)]
-        tagged = (kvm.fail_online.tag == hypothesis_id) & (kvm.fail_online.stamp >= 0)
-        rows.append(kvm.fail_online.data[tagged])
-        mu_h = kvm.encode(torch.cat(rows))[0]
-        center = self.center if self.center is not None else mu_h.mean(0)
-        sims = F.normalize(mu - center, dim=-1) @ F.normalize(mu_h - center, dim=-1).T
-        return sims.amax(-1) >= kvm.config.similarity
+@torch.no_grad()
+def _similar(kvm: Any, mu: Tensor, hypothesis_id: int) -> Tensor:
+    """[B] bool: context codes similar to a hypothesis's contexts (its prototype and negatives)."""
+    table = kvm.hypotheses
+    rows = [table.prototype[table.row(hypothesis_id)].unsqueeze(0)]
+    tagged = (kvm.fail_online.tag == hypothesis_id) & (kvm.fail_online.stamp >= 0)
+    rows.append(kvm.fail_online.data[tagged])
+    return kvm.gate.similar(mu, kvm.encode(torch.cat(rows))[0])
 
 
 def apply_feedback(
@@ -365,7 +352,6 @@ def apply_feedback(
         "confirmed": [],
         "new_skill": None,
     }
-    similarity = _Similarity(kvm)
 
     if failed:
         culprit = proposed
@@ -374,7 +360,7 @@ def apply_feedback(
         context &= ~kvm.known_safe(c_raw, culprit)
         hypothesis_id = None
         for h in kvm.hypotheses.ids(skill=culprit):
-            if bool(similarity(mu[context], h).any()):
+            if bool(_similar(kvm, mu[context], h).any()):
                 hypothesis_id = h
                 break
         suppressed = bool(intervention[context, culprit].any())
@@ -446,7 +432,7 @@ def apply_feedback(
             if i >= n_skills or not bool(intervention[:, i].any()):
                 continue
             steps_i = torch.nonzero(intervention[:, i]).flatten()
-            similar = similarity(mu[steps_i], h)
+            similar = _similar(kvm, mu[steps_i], h)
             if not bool(similar.any()):
                 continue
             matched = steps_i[similar]

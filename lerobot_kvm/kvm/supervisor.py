@@ -41,11 +41,19 @@ class KnowledgeValidityModule(nn.Module):
         self.energy = EnergyModel(config.feature_dim, config.energy_hidden, config.energy_max)
         self.classifier = RiskClassifier(config.feature_dim, config.energy_hidden)
         n_parts = 2 if self.encoder.query_dim else 1
-        self.gate = SmartGate(config.gate_window, raw_dim, config.gate_k, config.gate_min_count, n_parts)
         self.safe_offline = SampleBuffer(config.safe_offline_capacity, raw_dim, "reservoir")
         self.safe_online = SampleBuffer(config.safe_online_capacity, raw_dim, "ring")
         self.fail_offline = SampleBuffer(config.fail_offline_capacity, raw_dim, "reservoir")
         self.fail_online = SampleBuffer(config.fail_online_capacity, raw_dim, "protected")
+        self.gate = SmartGate(
+            config.gate_window,
+            raw_dim,
+            config.gate_k,
+            config.gate_min_count,
+            n_parts,
+            failures=self.failure_contexts if config.failure_gate else None,
+            similarity=config.similarity,
+        )
         self.safe_hard = SampleBuffer(config.hard_safe_capacity, raw_dim, "ring")
         self.hypotheses = HypothesisTable(config.hypothesis_capacity, raw_dim, config.persistence, config.tau_high)
         self.metabolism = SkillMetabolism(
@@ -141,7 +149,7 @@ class KnowledgeValidityModule(nn.Module):
         energy = self.skill_energies(mu, n_skills)
         v = validity(energy, self.config.gamma, self.config.l0)
         if use_gate and self.config.smart_gate:
-            v = torch.where((sigma2 > self.threshold()).unsqueeze(-1), v, torch.ones_like(v))
+            v = torch.where(self.gate_open(mu, sigma2).unsqueeze(-1), v, torch.ones_like(v))
         ok = valid.unsqueeze(-1) & torch.isfinite(energy) & active.unsqueeze(0)
         v = torch.where(ok, v, torch.zeros_like(v))
         if corrections is None or alphas is None:
@@ -150,6 +158,13 @@ class KnowledgeValidityModule(nn.Module):
 
     def threshold(self) -> Tensor:
         return self.gate.threshold(self.encoder, self.gate_memory)
+
+    def gate_open(self, mu: Tensor, sigma2: Tensor) -> Tensor:
+        """[B] bool: the smart gate's decision: sigma_c^2 above tau (a non-finite one included), or a context
+        similar to a failure met online (call after the gate is fresh)."""
+        gate = ~(sigma2 <= self.gate.tau_value)
+        near = self.gate.near_failure(mu)
+        return gate if near is None else gate | near
 
     def assess(
         self,
@@ -186,7 +201,7 @@ class KnowledgeValidityModule(nn.Module):
         elif self.gate_override == "closed":
             gate = ~torch.isfinite(sigma2)
         else:
-            gate = ~((sigma2 if sigma2_gate is None else sigma2_gate) <= tau)
+            gate = self.gate_open(mu, sigma2 if sigma2_gate is None else sigma2_gate)
         if all_active is None:
             all_active = bool(active.all())
         common = dict(
@@ -507,8 +522,13 @@ class KnowledgeValidityModule(nn.Module):
         if routine:
             self.gate.push(c_raw)
 
+    def failure_contexts(self) -> Tensor:
+        """The contexts of every failure met online that the memory holds."""
+        return self.fail_online.data[self.fail_online.filled()]
+
     def add_fail(self, c_raw: Tensor, skills: Tensor, hypothesis_id: int, permanent: bool = False) -> None:
         self.fail_online.add(c_raw, skills, PERMANENT if permanent else 0, hypothesis_id)
+        self.gate.stale = True  # the gate opens near failures met online
 
     @torch.no_grad()
     def make_permanent(self, hypothesis_id: int) -> int:

@@ -379,3 +379,28 @@ def test_online_successes_and_demonstrations_are_never_another_skills_negatives(
     flags = torch.cat([torch.ones(6, dtype=torch.bool), torch.zeros(5, dtype=torch.bool)])
     neg_c, neg_s = kvm.negatives_for(c_raw, skills, active, flags)
     assert torch.equal(neg_c, recorded) and neg_s.tolist() == [1, 1, 1, 0, 0, 0]
+
+
+def test_the_gate_opens_in_the_contexts_of_a_failure_met_online_and_nowhere_else(
+    make_policy, make_kvm_config, attempt
+) -> None:
+    """Fig. 2, phase 3: after a failed attempt's feedback the gate opens on its contexts, even where sigma_c^2
+    stays below tau, while routine contexts keep it closed; `kvm.failure_gate=false` leaves the old decision."""
+    rates = {}
+    for failure_gate in (False, True):
+        policy = make_policy(kvm=make_kvm_config(failure_gate=failure_gate))
+        for seed in range(4):  # routine successes fill the gate's window
+            policy.kvm_feedback("success", attempt(policy, EGG, steps=6, seed=seed), gradient_steps=0)
+        failed = attempt(policy, EGG, steps=6, seed=9)
+        report = policy.kvm_feedback("catastrophe", failed, gradient_steps=0)
+        kvm = policy.kvm
+        with torch.no_grad():
+            c_raw = kvm.raw_context(torch.cat(failed.contexts), policy.encode_query([EGG] * len(failed)))
+            stored = kvm.failure_contexts()
+            mu, sigma2, _ = kvm.encode(stored)
+            routine = attempt(policy, EGG, steps=6, seed=20)
+        assert report["negatives_added"] == len(stored) > 0 and bool((sigma2 <= kvm.threshold()).any())
+        assert bool(torch.isin(stored, c_raw).all())
+        rates[failure_gate] = (float(kvm.gate_open(mu, sigma2).float().mean()), routine.summary()["gate_open_steps"])
+    assert rates[True][0] == 1.0 and rates[False][0] < 1.0
+    assert rates[True][1] == rates[False][1] < 3
