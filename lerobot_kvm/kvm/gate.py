@@ -12,10 +12,12 @@ the encoder sees it now; the scales and mean/std/tau are persistent buffers. Wit
 interactions there are no statistics yet and the gate stays open (assess always).
 
 A failure makes its context uncertain (paper Fig. 2, phase 3): with failure contexts given, the gate also opens
-where the code mu_c is similar to one of them (centred cosine similarity, `kvm.similarity`, the test that
-matches a context to a failure hypothesis). A failure's context often reconstructs as well as the safe experience
-(the egg senses like the stone until it cracks), and a closed gate would keep both the energy model's suppression
-and a correction skill out of the very contexts the failure taught about.
+where the code mu_c is similar to one of them (centred cosine similarity at least `kvm.similarity`, the test that
+matches a context to a failure hypothesis) and more similar to it than to any safe reference. A failure's context
+often reconstructs as well as the safe experience (a new instruction over familiar forces), and a closed gate
+would keep both the energy model's suppression and a correction skill out of the very contexts the failure
+taught about; the comparison with the safe references keeps it closed where a failed attempt sensed exactly what
+the safe experience holds.
 """
 
 from collections.abc import Callable
@@ -59,6 +61,7 @@ class SmartGate(nn.Module):
         self.similarity = similarity
         self.center: Tensor | None = None  # runtime cache: mean code of the safe references
         self.fail_codes: Tensor | None = None  # runtime cache: the failures' centred unit codes
+        self.safe_codes: Tensor | None = None  # runtime cache: the safe references' centred unit codes
         self.register_load_state_dict_post_hook(SmartGate._after_load)
 
     @staticmethod
@@ -86,7 +89,7 @@ class SmartGate(nn.Module):
     def refresh(self, encoder: ContextEncoder, memory: SampleBuffer | None = None) -> Tensor:
         """Recompute the residual scales and (tau, mean, std) from the safe references with the current encoder."""
         reference = self.reference(memory)
-        self.center, self.fail_codes = None, None
+        self.center, self.fail_codes, self.safe_codes = None, None, None
         if len(reference) < max(self.min_count, 1):
             self.scale.fill_(1.0)
             stats = torch.tensor([float("-inf"), 0.0, 0.0])
@@ -96,6 +99,7 @@ class SmartGate(nn.Module):
             failures = self.failures() if self.failures is not None else mu[:0]
             if len(failures):
                 self.fail_codes = F.normalize(encoder(failures)[0] - self.center, dim=-1)
+                self.safe_codes = F.normalize(mu - self.center, dim=-1)
             self.scale.copy_(parts.mean(0).clamp_min(1e-6))
             tau, mean, std = adaptive_threshold(encoder.sigma2(parts, self.scale), self.k)
             stats = torch.stack([tau, mean, std])
@@ -110,16 +114,17 @@ class SmartGate(nn.Module):
 
         Cosine similarity about the safe references' mean code: raw codes all point roughly the same way."""
         center = self.center if self.center is not None else ref.mean(0)
-        return self._similar_to_unit(mu, F.normalize(ref - center, dim=-1), center)
+        sims = F.normalize(mu - center, dim=-1) @ F.normalize(ref - center, dim=-1).T
+        return sims.amax(-1) >= self.similarity
 
     def near_failure(self, mu: Tensor) -> Tensor | None:
-        """[B] bool: codes similar to a failure's context (None when there is none; call after ensure_fresh)."""
+        """[B] bool: codes similar to a failure's context, and more than to any safe reference (None when there is
+        no failure; call after ensure_fresh)."""
         if self.fail_codes is None or self.center is None:
             return None
-        return self._similar_to_unit(mu, self.fail_codes, self.center)
-
-    def _similar_to_unit(self, mu: Tensor, unit_ref: Tensor, center: Tensor) -> Tensor:
-        return (F.normalize(mu - center, dim=-1) @ unit_ref.T).amax(-1) >= self.similarity
+        unit = F.normalize(mu - self.center, dim=-1)
+        to_failure = (unit @ self.fail_codes.T).amax(-1)
+        return (to_failure >= self.similarity) & (to_failure > (unit @ self.safe_codes.T).amax(-1))
 
     def ensure_fresh(self, encoder: ContextEncoder, memory: SampleBuffer | None = None) -> None:
         if self.stale:

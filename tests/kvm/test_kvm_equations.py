@@ -48,6 +48,18 @@ def test_eq1_gate_uses_the_last_n_successful_interactions() -> None:
     assert gate.stats[1].item() == pytest.approx(1.0) and gate.stats[2].item() == pytest.approx(math.sqrt(1.25) / 2.5)
 
 
+def test_gate_opens_near_a_failure_where_no_safe_reference_is_nearer() -> None:
+    """Codes are the raw contexts here; the safe references are centred on the origin."""
+    safe = torch.tensor([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0], [1.0, 0.8], [-1.0, -0.8]])
+    gate = SmartGate(window=8, raw_dim=2, k=3.0, min_count=3, n_parts=1, failures=lambda: torch.tensor([[1.0, 1.0]]))
+    gate.push(safe)
+    gate.ensure_fresh(_FirstColumnIsTheResidual())
+    mu = torch.tensor([[2.0, 2.0], [2.0, 3.0], [1.0, 0.0], [1.0, 0.85]])
+    # cosine to the failure: 1.0, 0.981 (to [1, 0.8]: 0.953), 0.707 (< 0.9), 0.997 (to [1, 0.8]: 0.9998)
+    assert gate.near_failure(mu).tolist() == [True, True, False, False]
+    assert SmartGate(window=8, raw_dim=2, k=3.0, min_count=3, n_parts=1).near_failure(mu) is None
+
+
 def test_eq1_gate_also_covers_the_routine_rows_of_a_long_term_safe_memory() -> None:
     from lerobot_kvm.kvm.memory import ROUTINE, SampleBuffer
 
