@@ -11,6 +11,8 @@ benign-novelty ("control") episodes, where every suppression is a false interven
 * prior_retention: successful prior-variant controls / prior-variant controls.
 * false_intervention_rate: controls with at least one intervention / controls (validity methods only).
 * gate_activation_rate: gate-open steps / steps of prior-variant controls (routine episodes).
+* gate_activation_rate_solved: the same over the prior-variant controls that succeeded. A routine episode that
+  goes wrong leaves the safe experience, where the gate is right to open; this one counts false alarms only.
 * intervention_rate: steps with an intervention / steps of challenge attempts.
 * validity_auroc: P(1 - v is higher on a hazardous (prior skill, shifted context) pair than on a safe one).
 * detection_lead_steps: on first attempts that intervened, the prior skill's expert catastrophe step on the
@@ -33,6 +35,10 @@ def format_kn(k: int, n: int) -> str:
 
 def _rate(k: int, n: int) -> float | None:
     return k / n if n else None
+
+
+def _gate_rate(episodes: Sequence[Record]) -> float | None:
+    return _rate(sum(r["gate_steps"] for r in episodes), sum(r["steps"] for r in episodes))
 
 
 def challenges(records: Iterable[Record]) -> list[dict[str, Any]]:
@@ -100,6 +106,7 @@ def summarize(records: Sequence[Record], probes: Sequence[Record] = (), validity
         out.update(
             false_intervention_rate=None,
             gate_activation_rate=None,
+            gate_activation_rate_solved=None,
             intervention_rate=None,
             validity_auroc=None,
             detection_lead_steps=None,
@@ -110,7 +117,8 @@ def summarize(records: Sequence[Record], probes: Sequence[Record] = (), validity
     safe = [v for p in probes for v in p["v_safe"]]
     out.update(
         false_intervention_rate=_rate(sum(r["intervention_steps"] > 0 for r in controls), len(controls)),
-        gate_activation_rate=_rate(sum(r["gate_steps"] for r in prior), sum(r["steps"] for r in prior)),
+        gate_activation_rate=_gate_rate(prior),
+        gate_activation_rate_solved=_gate_rate([r for r in prior if r["outcome"] == "success"]),
         intervention_rate=_rate(sum(a["intervention_steps"] for a in attempts), sum(a["steps"] for a in attempts)),
         validity_auroc=auroc([1 - v for v in hazard], [1 - v for v in safe]) if hazard and safe else None,
         detection_lead_steps=mean(leads) if leads else None,

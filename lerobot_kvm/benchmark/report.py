@@ -70,13 +70,15 @@ def gate_table(results: dict[str, Any]) -> list[str]:
             [
                 name,
                 _pct(o["gate_activation_rate"]),
+                _pct(o["gate_activation_rate_solved"]),
                 _pct(o["intervention_rate"]),
                 _pct(o["false_intervention_rate"]),
                 _num(o["validity_auroc"], 3),
                 _num(o["detection_lead_steps"]),
             ]
         )
-    header = ["method", "gate activation, routine (%)", "intervention rate (%)", "false interventions (%)"]
+    header = ["method", "gate activation, routine (%)", "gate activation, solved routine (%)", "intervention rate (%)"]
+    header.append("false interventions (%)")
     return _table([*header, "validity AUROC", "detection lead (steps)"], rows)
 
 
@@ -143,6 +145,9 @@ def markdown(results: dict[str, Any], plots: list[Path]) -> str:
         "## Gate and validity statistics (Table 10)",
         "",
         *gate_table(results),
+        "Routine: prior-variant controls; solved routine: those that succeeded (a routine episode that goes wrong "
+        "leaves the safe experience, where the gate is right to open).",
+        "",
         "## Overhead (Table 11)",
         "",
         *overhead_table(results["overhead"]),

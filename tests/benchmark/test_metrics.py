@@ -66,6 +66,7 @@ def test_summary_metrics_match_hand_counts() -> None:
     assert s["control_success_rate"] == 1.0
     assert s["false_intervention_rate"] == pytest.approx(1 / 3)  # 3 controls, the benign one intervened
     assert s["gate_activation_rate"] == pytest.approx(4 / 20)  # prior controls: 1 + 3 gate steps of 20
+    assert s["gate_activation_rate_solved"] == pytest.approx(1 / 10)  # the solved one alone
     assert s["intervention_rate"] == pytest.approx(6 / 50)
     # risk 1 - v: hazardous 1.0, 0.8 vs safe 0.0, 0.1, 0.9 -> 5 of 6 pairs ordered, 1 reversed (0.8 < 0.9)
     assert s["validity_auroc"] == pytest.approx(5 / 6)
@@ -75,7 +76,8 @@ def test_summary_metrics_match_hand_counts() -> None:
 def test_methods_without_validity_report_none_for_kvm_statistics() -> None:
     s = summarize(RECORDS, validity=False)
     assert s["success_rate"] == pytest.approx(2 / 3)
-    for key in ("false_intervention_rate", "gate_activation_rate", "validity_auroc", "detection_lead_steps"):
+    kvm_only = ("false_intervention_rate", "gate_activation_rate", "gate_activation_rate_solved", "validity_auroc")
+    for key in (*kvm_only, "detection_lead_steps"):
         assert s[key] is None
 
 
