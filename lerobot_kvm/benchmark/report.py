@@ -77,9 +77,9 @@ def gate_table(results: dict[str, Any]) -> list[str]:
                 _num(o["detection_lead_steps"]),
             ]
         )
-    header = ["method", "gate activation, routine (%)", "gate activation, solved routine (%)", "intervention rate (%)"]
-    header.append("false interventions (%)")
-    return _table([*header, "validity AUROC", "detection lead (steps)"], rows)
+    gate = ["gate activation, routine (%)", "gate activation, solved routine (%)"]
+    rates = ["intervention rate (%)", "false interventions (%)"]
+    return _table(["method", *gate, *rates, "validity AUROC", "detection lead (steps)"], rows)
 
 
 def overhead_table(overhead: dict[str, Any] | None) -> list[str]:

@@ -528,7 +528,8 @@ class KnowledgeValidityModule(nn.Module):
 
     def add_fail(self, c_raw: Tensor, skills: Tensor, hypothesis_id: int, permanent: bool = False) -> None:
         self.fail_online.add(c_raw, skills, PERMANENT if permanent else 0, hypothesis_id)
-        self.gate.stale = True  # the gate opens near failures met online
+        if self.gate.failures is not None:
+            self.gate.stale = True  # the gate opens near failures met online: their codes must be re-encoded
 
     @torch.no_grad()
     def make_permanent(self, hypothesis_id: int) -> int:
