@@ -21,6 +21,8 @@ COLUMNS = (
     ("v shifted", "v_shifted_median", "{:.3f}"),
     ("v<tau_v", "v_shifted_below_tau_v", "{:.2f}"),
     ("AUROC", "auroc", "{:.3f}"),
+    ("AUROC prior", "auroc_prior_skill", "{:.3f}"),
+    ("NN ref", "neighbour_auroc", "{:.3f}"),
     ("gate prior", "gate_rate_prior", "{:.3f}"),
     ("gate shifted", "gate_rate_shifted", "{:.2f}"),
 )
@@ -29,7 +31,9 @@ LEGEND = (
     "(the steps from the first one that senses contact and departs from the prior variant's context, same seed\n"
     "and skill);\n"
     "AUROC of 1 - v: prior skill in the shifted context vs. prior skill in the prior context and safe skill in\n"
-    "the shifted context; gate = share of steps on which the smart gate opens"
+    "the shifted context; AUROC prior: the prior skill's pairs only; NN ref: the same pairs scored by nearest\n"
+    "neighbours in the sensed context from the same experience (what the context alone allows);\n"
+    "gate = share of steps on which the smart gate opens"
 )
 
 

@@ -19,6 +19,12 @@ read object poses, so their approach may differ between variants before any cont
 
 Hazardous pairs: the prior skill in the shifted context; safe pairs: the prior skill in the prior-variant context
 and the safe skill in the shifted context.
+
+A reference for the prior skill's AUROC: how well the sensed context alone separates the shifted from the
+prior-variant contexts given the same experience (the prior skill's offline frames, the failed attempt and the
+corrective demonstration from their shift steps on), scored by nearest neighbours in the normalized context. It
+tells a scenario whose context carries the shift (the KVM falls short of what its input allows) from one whose
+context barely does.
 """
 
 import tempfile
@@ -52,6 +58,7 @@ MIN_AUROC = 0.95
 MAX_GATE_RATE = 0.06
 DIVERGENCE = 1e-3  # normalised context units: the shifted context departs from the prior variant's
 CONTEXT = "observation.context"
+NEIGHBOURS = 3
 
 
 def _small_policy(root: Path, repo_id: str, skill_name: str, online_encoder: str) -> Any:
@@ -94,6 +101,16 @@ def divergence_step(reference: Tensor, other: Tensor) -> int:
 def shift_step(prior: dict, shifted: dict) -> int:
     """First step of the shifted demonstration that senses contact and departs from the prior one's context."""
     return max(divergence_step(prior[CONTEXT], shifted[CONTEXT]), shifted["first_contact"])
+
+
+def neighbour_risk(contexts: Tensor, safe: Tensor, hazardous: Tensor, k: int = NEIGHBOURS) -> Tensor:
+    """[N] risk of contexts [N, C]: the mean distance to their k nearest safe contexts minus that to their k nearest
+    hazardous ones (higher = nearer the hazard than the safe experience)."""
+
+    def nearest(reference: Tensor) -> Tensor:
+        return torch.cdist(contexts, reference).topk(min(k, len(reference)), largest=False).values.mean(1)
+
+    return nearest(safe) - nearest(hazardous)
 
 
 def _rollouts(scenario_id: str, variant: str, skill: str, preprocessor: Any, seeds: list[int]) -> list[dict]:
@@ -161,6 +178,10 @@ def check_validity(
     )
     env.close()
     report = policy.kvm_feedback(failed_outcome, trace_from_demonstration(failed), demonstration=corrective)
+    twins = _rollouts(scenario_id, "prior", info.prior_skill, pre, [base]) + _rollouts(
+        scenario_id, "prior", info.safe_skill, pre, [base + 1]
+    )
+    met = _after([failed, corrective], [shift_step(t, d) for t, d in zip(twins, (failed, corrective), strict=True)])
 
     seeds = [base + 100 + i for i in range(held_out)]
     prior_prior = _rollouts(scenario_id, "prior", info.prior_skill, pre, seeds)
@@ -186,12 +207,23 @@ def check_validity(
         "v_shifted_median": float(v_shifted.median()) if len(v_shifted) else None,
         "v_shifted_below_tau_v": float((v_shifted < V_LOW).float().mean()) if len(v_shifted) else None,
         "auroc": auroc(1 - v_shifted, torch.cat([1 - v_prior, 1 - v_safe])) if len(v_shifted) else None,
+        "auroc_prior_skill": auroc(1 - v_shifted, 1 - v_prior) if len(v_shifted) else None,
+        "neighbour_auroc": _neighbour_auroc(data[CONTEXT][is_prior], met, shifted, prior_prior),
         "gate_rate_prior": gate_rate(policy, prior_prior),
         "gate_rate_shifted": gate_rate(policy, shifted) if shifted else None,
     }
     row["passes"] = judge(row)
     row["passed"] = all(row["passes"].values())
     return row
+
+
+def _neighbour_auroc(safe: Tensor, met: list[dict], shifted: list[dict], prior: list[dict]) -> float | None:
+    """AUROC of `neighbour_risk` on the prior skill's pairs (None when the feedback met no shifted context)."""
+    if not met or not shifted:
+        return None
+    hazardous = torch.cat([d[CONTEXT] for d in met])
+    risk = [neighbour_risk(torch.cat([d[CONTEXT] for d in demos]), safe, hazardous) for demos in (shifted, prior)]
+    return auroc(*risk)
 
 
 def judge(row: dict[str, Any]) -> dict[str, bool]:

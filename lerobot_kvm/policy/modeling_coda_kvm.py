@@ -301,7 +301,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Any], skill_weights: Tensor | None = None) -> Tensor:
         """Normalized action chunk [B, chunk_size, action_dim] (KVM-assessed unless skill weights are given)."""
-        self.eval()
+        self._to_eval()
         chunk, telemetry = self._infer(batch, skill_weights)
         if telemetry is not None:
             self._kvm_telemetry = telemetry
@@ -312,7 +312,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
         """Next normalized action [B, action_dim]; a new chunk every `n_action_steps` calls, fused with the
         KVM's skill weights (or the given ones). With `kvm.assess_every_step` the KVM assesses every call and
         replans at once when the set of suppressed skills changes."""
-        self.eval()
+        self._to_eval()
         pending = None
         if self._action_queue and self.config.kvm.assess_every_step and self._kvm_active(skill_weights):
             pending = self._assess(batch)
@@ -336,6 +336,12 @@ class CodaKvmPolicy(PreTrainedPolicy):
         if self.config.kvm.record_trace:
             self._record_step(batch, action)
         return action
+
+    def _to_eval(self) -> None:
+        """Inference runs in eval mode; `eval()` walks every submodule, which costs more than the KVM's gate-closed
+        check, so it runs only when the policy is in training mode."""
+        if self.training:
+            self.eval()
 
     def _record_step(self, batch: dict[str, Any], action: Tensor) -> None:
         trace = self._kvm_trace

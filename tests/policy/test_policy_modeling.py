@@ -200,6 +200,18 @@ def test_select_action_uses_a_chunk_queue(make_policy, make_batch) -> None:
     assert len(policy._action_queue) == 0
 
 
+@pytest.mark.parametrize("infer", ["select_action", "predict_action_chunk"])
+def test_inference_switches_a_policy_left_in_training_mode_to_eval(make_policy, make_batch, infer) -> None:
+    policy = make_policy(dropout=0.5)
+    batch = make_batch(policy.config, batch_size=2, with_action=False)
+    policy.eval()
+    expected = policy.predict_action_chunk(batch)
+    policy.train()
+    out = getattr(policy, infer)(batch)
+    assert not any(m.training for m in policy.modules())
+    torch.testing.assert_close(out, expected[:, 0] if infer == "select_action" else expected)  # no dropout
+
+
 @pytest.mark.parametrize(
     ("mutate", "key"),
     [
