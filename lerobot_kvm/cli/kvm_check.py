@@ -16,6 +16,7 @@ COLUMNS = (
     ("cat", "category", "{}"),
     ("failed attempt", "failed_attempt", "{}"),
     ("shift step", "shift_step", "{:.0f}"),
+    ("fail steps", "failure_steps", "{:d}"),
     ("v prior", "v_prior_median", "{:.3f}"),
     ("v>0.9", "v_prior_above_0.9", "{:.2f}"),
     ("v shifted", "v_shifted_median", "{:.3f}"),
@@ -32,7 +33,8 @@ LEGEND = (
     "and skill);\n"
     "AUROC of 1 - v: prior skill in the shifted context vs. prior skill in the prior context and safe skill in\n"
     "the shifted context; AUROC prior: the prior skill's pairs only; NN ref: the same pairs scored by nearest\n"
-    "neighbours in the sensed context from the same experience (what the context alone allows);\n"
+    "neighbours in the sensed context from the same experience, the failed attempt and the demonstration cut at\n"
+    "their shift steps (which the KVM is not told); fail steps = contexts the feedback learned as hazardous;\n"
     "gate = share of steps on which the smart gate opens"
 )
 

@@ -23,8 +23,8 @@ and the safe skill in the shifted context.
 A reference for the prior skill's AUROC: how well the sensed context alone separates the shifted from the
 prior-variant contexts given the same experience (the prior skill's offline frames, the failed attempt and the
 corrective demonstration from their shift steps on), scored by nearest neighbours in the normalized context. It
-tells a scenario whose context carries the shift (the KVM falls short of what its input allows) from one whose
-context barely does.
+tells a scenario whose context carries the shift from one whose context barely does. It is a reference, not a
+bound: it is told the shift steps, which the KVM must find itself, and it does not read the instruction.
 """
 
 import tempfile
@@ -201,6 +201,7 @@ def check_validity(
         "failed_attempt": failed_outcome,
         "corrective_demo": corrective_outcome,
         "culprit": report.get("culprit"),
+        "failure_steps": report.get("negatives_added"),  # contexts the feedback learned as hazardous for the culprit
         "shift_step": float(torch.tensor(start_prior, dtype=torch.float32).mean()),
         "v_prior_median": float(v_prior.median()),
         "v_prior_above_0.9": float((v_prior > V_HIGH).float().mean()),
