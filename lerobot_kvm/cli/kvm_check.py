@@ -24,6 +24,9 @@ COLUMNS = (
     ("AUROC", "auroc", "{:.3f}"),
     ("AUROC prior", "auroc_prior_skill", "{:.3f}"),
     ("NN ref", "neighbour_auroc", "{:.3f}"),
+    ("own steps", "own_shifted_steps", "{:d}"),
+    ("AUROC own", "auroc_own_steps", "{:.3f}"),
+    ("NN own", "neighbour_auroc_own_steps", "{:.3f}"),
     ("gate prior", "gate_rate_prior", "{:.3f}"),
     ("gate shifted", "gate_rate_shifted", "{:.2f}"),
 )
@@ -34,7 +37,8 @@ LEGEND = (
     "AUROC of 1 - v: prior skill in the shifted context vs. prior skill in the prior context and safe skill in\n"
     "the shifted context; AUROC prior: the prior skill's pairs only; NN ref: the same pairs scored by nearest\n"
     "neighbours in the sensed context from the same experience, the failed attempt and the demonstration cut at\n"
-    "their shift steps (which the KVM is not told); fail steps = contexts the feedback learned as hazardous;\n"
+    "their shift steps (which the KVM is not told); own: the same two over the prior skill's own shifted steps\n"
+    "only; fail steps = contexts the feedback learned as hazardous;\n"
     "gate = share of steps on which the smart gate opens"
 )
 

@@ -22,9 +22,11 @@ and the safe skill in the shifted context.
 
 A reference for the prior skill's AUROC: how well the sensed context alone separates the shifted from the
 prior-variant contexts given the same experience (the prior skill's offline frames, the failed attempt and the
-corrective demonstration from their shift steps on), scored by nearest neighbours in the normalized context. It
-tells a scenario whose context carries the shift from one whose context barely does. It is a reference, not a
-bound: it is told the shift steps, which the KVM must find itself, and it does not read the instruction.
+corrective demonstration from their shift steps on), scored by nearest neighbours in the normalized context, over
+all the shifted steps and over the prior skill's own (the safe skill's shifted steps also differ from the prior
+context by the safe skill's own motion). It tells a scenario whose context carries the shift from one whose
+context barely does. It is a reference, not a bound: it is told the shift steps, which the KVM must find itself,
+and it does not read the instruction.
 """
 
 import tempfile
@@ -190,7 +192,8 @@ def check_validity(
     shifted_safe = _rollouts(scenario_id, "shifted", info.safe_skill, pre, seeds)
     start_prior = [shift_step(a, b) for a, b in zip(prior_prior, shifted_prior, strict=True)]
     start_safe = [shift_step(a, b) for a, b in zip(prior_safe, shifted_safe, strict=True)]
-    shifted = _after(shifted_prior, start_prior) + _after(shifted_safe, start_safe)
+    own = _after(shifted_prior, start_prior)  # the prior skill's own shifted steps (none if it fails at contact)
+    shifted = own + _after(shifted_safe, start_safe)
 
     v_prior = context_validity(policy, prior_prior, 0)
     v_shifted = context_validity(policy, shifted, 0) if shifted else torch.empty(0)
@@ -210,6 +213,9 @@ def check_validity(
         "auroc": auroc(1 - v_shifted, torch.cat([1 - v_prior, 1 - v_safe])) if len(v_shifted) else None,
         "auroc_prior_skill": auroc(1 - v_shifted, 1 - v_prior) if len(v_shifted) else None,
         "neighbour_auroc": _neighbour_auroc(data[CONTEXT][is_prior], met, shifted, prior_prior),
+        "own_shifted_steps": sum(len(d["task"]) for d in own),
+        "auroc_own_steps": auroc(1 - context_validity(policy, own, 0), 1 - v_prior) if own else None,
+        "neighbour_auroc_own_steps": _neighbour_auroc(data[CONTEXT][is_prior], met, own, prior_prior),
         "gate_rate_prior": gate_rate(policy, prior_prior),
         "gate_rate_shifted": gate_rate(policy, shifted) if shifted else None,
     }
