@@ -197,6 +197,8 @@ def check_validity(
 
     v_prior = context_validity(policy, prior_prior, 0)
     v_shifted = context_validity(policy, shifted, 0) if shifted else torch.empty(0)
+    n_own = sum(len(d["task"]) for d in own)  # the first rows of v_shifted
+    risk = _neighbour_risks(data[CONTEXT][is_prior], met, shifted, prior_prior)
     v_safe = context_validity(policy, shifted, 1) if shifted else torch.empty(0)
     row: dict[str, Any] = {
         "id": scenario_id,
@@ -212,10 +214,10 @@ def check_validity(
         "v_shifted_below_tau_v": float((v_shifted < V_LOW).float().mean()) if len(v_shifted) else None,
         "auroc": auroc(1 - v_shifted, torch.cat([1 - v_prior, 1 - v_safe])) if len(v_shifted) else None,
         "auroc_prior_skill": auroc(1 - v_shifted, 1 - v_prior) if len(v_shifted) else None,
-        "neighbour_auroc": _neighbour_auroc(data[CONTEXT][is_prior], met, shifted, prior_prior),
-        "own_shifted_steps": sum(len(d["task"]) for d in own),
-        "auroc_own_steps": auroc(1 - context_validity(policy, own, 0), 1 - v_prior) if own else None,
-        "neighbour_auroc_own_steps": _neighbour_auroc(data[CONTEXT][is_prior], met, own, prior_prior),
+        "neighbour_auroc": auroc(*risk) if risk else None,
+        "own_shifted_steps": n_own,
+        "auroc_own_steps": auroc(1 - v_shifted[:n_own], 1 - v_prior) if n_own else None,
+        "neighbour_auroc_own_steps": auroc(risk[0][:n_own], risk[1]) if risk and n_own else None,
         "gate_rate_prior": gate_rate(policy, prior_prior),
         "gate_rate_shifted": gate_rate(policy, shifted) if shifted else None,
     }
@@ -224,13 +226,18 @@ def check_validity(
     return row
 
 
-def _neighbour_auroc(safe: Tensor, met: list[dict], shifted: list[dict], prior: list[dict]) -> float | None:
-    """AUROC of `neighbour_risk` on the prior skill's pairs (None when the feedback met no shifted context)."""
+def _neighbour_risks(
+    safe: Tensor, met: list[dict], shifted: list[dict], prior: list[dict]
+) -> tuple[Tensor, Tensor] | None:
+    """`neighbour_risk` of every shifted and every prior-variant step, in order (None when the feedback met no
+    shifted context or there is none to score)."""
     if not met or not shifted:
         return None
     hazardous = torch.cat([d[CONTEXT] for d in met])
-    risk = [neighbour_risk(torch.cat([d[CONTEXT] for d in demos]), safe, hazardous) for demos in (shifted, prior)]
-    return auroc(*risk)
+    shifted_risk, prior_risk = (
+        neighbour_risk(torch.cat([d[CONTEXT] for d in demos]), safe, hazardous) for demos in (shifted, prior)
+    )
+    return shifted_risk, prior_risk
 
 
 def judge(row: dict[str, Any]) -> dict[str, bool]:
