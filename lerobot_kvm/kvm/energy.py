@@ -1,8 +1,11 @@
 """Joint (context, skill) feature h, the energy model E_theta (eq. 11), validity (eq. 2) and the BCE variant.
 
-h_i = normalize(W [mu_c ; e_i] + b): the context code joined with a learned embedding of skill i (one row per
-CODA task slot, so a skill created later already has its row). h lies on the unit sphere, which bounds the
-Euclidean distances of the triplet loss (eq. 5).
+h_i = normalize(normalize(W_c mu_c + b) + normalize(W_s e_i)): the context code joined with a learned embedding of
+skill i (one row per CODA task slot, so a skill created later already has its row). Each part is a unit vector,
+so the skill keeps its weight in h however far a context lies from the safe experience: with one projection of
+[mu_c ; e_i], a large code drowns the skill, every skill gets the same energy in an unfamiliar context, and a
+failure there suppresses the skill that corrects it as well as its culprit. h lies on the unit sphere, which
+bounds the Euclidean distances of the triplet loss (eq. 5).
 
 E_theta is an MLP (3x256, ReLU) with a bounded output E = E_max * tanh(raw / E_max): eq. 6 rewards low energy
 on safe samples without limit, so an unbounded energy would run to -inf.
@@ -27,18 +30,26 @@ class JointFeature(nn.Module):
     def __init__(self, latent_dim: int, n_skills: int, skill_dim: int, feature_dim: int) -> None:
         super().__init__()
         self.skill_embed = nn.Embedding(n_skills, skill_dim)
-        self.proj = nn.Linear(latent_dim + skill_dim, feature_dim)
+        self.context_proj = nn.Linear(latent_dim, feature_dim)
+        self.skill_proj = nn.Linear(skill_dim, feature_dim, bias=False)
 
     def forward(self, mu: Tensor, skills: Tensor) -> Tensor:
         """h [N, feature_dim] of contexts mu [N, L] paired with skill indices [N]."""
-        return F.normalize(self.proj(torch.cat([mu, self.skill_embed(skills)], dim=-1)), dim=-1)
+        return self._join(self._context(mu), self._skill(skills))
 
     def all_skills(self, mu: Tensor, skills: Tensor) -> Tensor:
         """h [B, S, feature_dim] of every context [B, L] with every skill in `skills` [S]."""
-        emb = self.skill_embed(skills)  # [S, E]
-        b, s = mu.shape[0], emb.shape[0]
-        joined = torch.cat([mu.unsqueeze(1).expand(b, s, -1), emb.unsqueeze(0).expand(b, s, -1)], dim=-1)
-        return F.normalize(self.proj(joined), dim=-1)
+        return self._join(self._context(mu).unsqueeze(1), self._skill(skills).unsqueeze(0))
+
+    def _context(self, mu: Tensor) -> Tensor:
+        return F.normalize(self.context_proj(mu), dim=-1)
+
+    def _skill(self, skills: Tensor) -> Tensor:
+        return F.normalize(self.skill_proj(self.skill_embed(skills)), dim=-1)
+
+    @staticmethod
+    def _join(context: Tensor, skill: Tensor) -> Tensor:
+        return F.normalize(context + skill, dim=-1)
 
 
 class EnergyModel(nn.Module):

@@ -394,8 +394,10 @@ def apply_feedback(
             else:
                 demo_skill = _demo_skill(d_rel, culprit, active)
             if demo_skill is not None:
-                # a gap skill is meant for the contexts the culprit failed in as well as the demonstrated ones
-                seen = torch.cat([d_raw, c_raw]) if gap is not None else d_raw
+                # The demonstrated strategy is the one meant for the contexts the culprit failed in: they are safe
+                # for it (for a new gap skill, the whole failed attempt). Otherwise those contexts would be
+                # hazardous for the culprit and unknown, so judged invalid, for the very skill that corrects it.
+                seen = torch.cat([d_raw, c_raw if gap is not None else c_raw[context]])
                 skills = torch.full((len(seen),), demo_skill)
                 kvm.add_safe(seen, skills, routine=False, demo=True)
                 safe_c.append(seen)

@@ -7,7 +7,7 @@ import torch
 from torch import nn
 
 from lerobot_kvm.kvm.context_encoder import ContextEncoder
-from lerobot_kvm.kvm.energy import EnergyModel, RiskClassifier, validity
+from lerobot_kvm.kvm.energy import EnergyModel, JointFeature, RiskClassifier, validity
 from lerobot_kvm.kvm.fusion import correction_validity, fuse_weights
 from lerobot_kvm.kvm.gate import SmartGate, adaptive_threshold
 from lerobot_kvm.kvm.losses import bce_loss, contrastive_loss, energy_loss, total_loss
@@ -239,3 +239,20 @@ def test_a_skill_is_pruned_only_when_its_rate_remains_above_the_threshold_over_t
     # e's arrival finds c, d at 1/2: the streak restarts; failures at e, f, g, h bring it back to 2 at h
     assert [interact(t, True) for t in "efg"] == [[]] * 3
     assert interact("h", True) == [0] and int(meta.pruned[0]) == 1
+
+
+def test_joint_feature_keeps_the_skill_in_a_far_context() -> None:
+    """h = normalize(normalize(W_c mu + b) + normalize(W_s e)): a code far from the safe experience does not drown
+    the skill, so two skills keep distinct features (and energies) there."""
+    joint = JointFeature(latent_dim=2, n_skills=2, skill_dim=2, feature_dim=2)
+    with torch.no_grad():
+        joint.context_proj.weight.copy_(torch.eye(2))
+        joint.context_proj.bias.zero_()
+        joint.skill_proj.weight.copy_(torch.eye(2))
+        joint.skill_embed.weight.copy_(torch.tensor([[0.0, 1.0], [0.0, -1.0]]))
+    far = torch.tensor([[1e4, 0.0]])
+    s = 2**-0.5  # the unit context (1, 0) plus the unit skill (0, +-1), normalized
+    h = joint.all_skills(far, torch.arange(2))
+    assert h.shape == (1, 2, 2)
+    assert torch.allclose(h[0], torch.tensor([[s, s], [s, -s]]))
+    assert torch.allclose(joint(far.expand(2, -1), torch.arange(2)), h[0])
