@@ -186,10 +186,10 @@ def _demonstration(policy, make_batch, steps: int = 5, skill: str | None = None)
     return make_demonstration(per_step, skill=skill)
 
 
-def test_with_a_joint_online_encoder_the_failed_contexts_move_the_codes_too(
+def test_with_the_joint_online_encoder_the_failed_contexts_move_the_codes_too(
     make_policy, make_kvm_config, make_batch, attempt
 ) -> None:
-    policy = make_policy(kvm=make_kvm_config(online_encoder="joint"))
+    policy = make_policy()  # the default online encoder is "joint"
     encoder = {k: v.clone() for k, v in policy.kvm.encoder.state_dict().items()}
     demo = _demonstration(policy, make_batch)
     policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6), demonstration=demo, gradient_steps=2)
@@ -199,17 +199,19 @@ def test_with_a_joint_online_encoder_the_failed_contexts_move_the_codes_too(
 
 
 def test_a_failure_without_a_strong_alternative_seeds_a_correcting_skill_from_its_demonstration(
-    make_policy, make_batch, attempt
+    make_policy, make_kvm_config, make_batch, attempt
 ) -> None:
-    policy = make_policy()  # one skill: nothing else could take over once it is suppressed
+    # one skill: nothing else could take over once it is suppressed
+    policy = make_policy(kvm=make_kvm_config(online_encoder="reconstruction"))
     backbone = {k: v.clone() for k, v in policy.backbone.state_dict().items()}
     old_skill = {k: v.clone() for k, v in policy.pool.tasks[0].state_dict().items()}
     encoder = {k: v.clone() for k, v in policy.kvm.encoder.state_dict().items()}
     energy = {k: v.clone() for k, v in policy.kvm.energy.state_dict().items()}
     demo = _demonstration(policy, make_batch)
     report = policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6), demonstration=demo, gradient_steps=2)
-    # online, E_c learns from routine reconstruction only (there is none here): the failed contexts, safe for the
-    # correction and hazardous for the culprit, move the energy model but not the codes the gate reads
+    # with online_encoder=reconstruction, E_c learns from routine reconstruction only (there is none here): the
+    # failed contexts, safe for the correction and hazardous for the culprit, move the energy model but not the
+    # codes the gate reads
     assert all(torch.equal(v, encoder[k]) for k, v in policy.kvm.encoder.state_dict().items())
     assert any(not torch.equal(v, energy[k]) for k, v in policy.kvm.energy.state_dict().items())
     new = report["new_skill"]
