@@ -10,7 +10,8 @@ after an attempt:
   last K steps) form a low-confidence hypothesis, or add evidence to a matching one. The failure context paired
   with the culprit becomes provisional h_fail negatives; a corrective demonstration gives positives for the
   skill that demonstrates the safe strategy (its name in `demonstration["skill"]`, else the most relevant
-  alternative) and, where its contexts are unfamiliar, more negatives for the culprit. Then a fixed budget of
+  alternative), in its own contexts and in the failure context, and, where its contexts are unfamiliar, more
+  negatives for the culprit. Then a fixed budget of
   gradient steps updates the KVM, replaying the safe memory so that what was safe stays safe. This first update
   is what lowers v(culprit, failure context) already on the next attempt; the hypothesis governs confirmation.
   With a demonstration, the knowledge gap is tested at once (`kvm.gap_on_failure`): if every alternative to

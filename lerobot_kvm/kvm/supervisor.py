@@ -423,11 +423,11 @@ class KnowledgeValidityModule(nn.Module):
         """A fixed budget of gradient steps on the KVM (E_c, join, energy model, classifier).
 
         Each step mixes the fresh samples of this feedback (half of each side) with replay from the memories,
-        so what was safe stays safe; cross-skill and synthetic negatives are added as offline. By default E_c
-        learns only its reconstruction here (`kvm.online_encoder`): a feedback's few contexts (for a knowledge gap,
-        the failed ones are safe for the new skill and hazardous for its culprit) would otherwise pull the codes,
-        and with them the residual the smart gate reads, away from the rest of the safe experience, and routine
-        contexts would open the gate.
+        so what was safe stays safe; cross-skill and synthetic negatives are added as offline. With
+        `kvm.online_encoder="joint"` (the default) E_c learns from the contrastive and energy terms too, which moves
+        the codes of the failure contexts away from the culprit's safe ones. With "reconstruction" it learns only its
+        reconstruction here, so a feedback's few contexts (the failed ones are safe for the demonstrated skill and
+        hazardous for its culprit) cannot move the codes, nor the residual the smart gate reads.
         """
         cfg = self.config
         batch = batch or cfg.feedback_batch
