@@ -11,9 +11,9 @@ after an attempt:
   with the culprit becomes provisional h_fail negatives; a corrective demonstration gives positives for the
   skill that demonstrates the safe strategy (its name in `demonstration["skill"]`, else the most relevant
   alternative), in its own contexts and in the failure context, and, where its contexts are unfamiliar, more
-  negatives for the culprit. Then a fixed budget of
-  gradient steps updates the KVM, replaying the safe memory so that what was safe stays safe. This first update
-  is what lowers v(culprit, failure context) already on the next attempt; the hypothesis governs confirmation.
+  negatives for the culprit. Then a fixed budget of gradient steps updates the KVM, replaying the safe memory so
+  that what was safe stays safe. This first update is what lowers v(culprit, failure context) already on the next
+  attempt; the hypothesis governs confirmation.
   With a demonstration, the knowledge gap is tested at once (`kvm.gap_on_failure`): if every alternative to
   the culprit is weak in the failure context, suppression alone would leave no strategy, so a new *gated* skill
   that corrects the culprit (`fusion.correction_validity`) is begun and seeded from the demonstration: KVM
@@ -370,8 +370,9 @@ def apply_feedback(
         else:
             kvm.hypotheses.record_failure(hypothesis_id, suppressed)
         permanent = kvm.hypotheses.is_confirmed(hypothesis_id)
-        fail_c = [c_raw[context]]
-        kvm.add_fail(c_raw[context], torch.full((int(context.sum()),), culprit), hypothesis_id, permanent)
+        failure_context = c_raw[context]
+        fail_c = [failure_context]
+        kvm.add_fail(failure_context, torch.full((len(failure_context),), culprit), hypothesis_id, permanent)
         safe_c: list[Tensor] = []
         safe_s: list[Tensor] = []
         demo_skill = None
@@ -398,7 +399,7 @@ def apply_feedback(
                 # The demonstrated strategy is the one meant for the contexts the culprit failed in: they are safe
                 # for it (for a new gap skill, the whole failed attempt). Otherwise those contexts would be
                 # hazardous for the culprit and unknown, so judged invalid, for the very skill that corrects it.
-                seen = torch.cat([d_raw, c_raw if gap is not None else c_raw[context]])
+                seen = torch.cat([d_raw, c_raw if gap is not None else failure_context])
                 skills = torch.full((len(seen),), demo_skill)
                 kvm.add_safe(seen, skills, routine=False, demo=True)
                 safe_c.append(seen)
