@@ -279,7 +279,7 @@ class ContinualRun:
             episodes=episodes,
             launcher=self.launcher,
         )
-        run_logged(cmd, stage_dir / "train.log")
+        run_logged(cmd, stage_dir / "train.log", done=checkpoint.exists)  # the only checkpoint is the final one
         (stage_dir / TIMING).write_text(json.dumps({"train_wall_s": time.time() - start}))
         return checkpoint
 

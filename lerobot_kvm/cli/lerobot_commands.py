@@ -4,11 +4,16 @@ Pipelines run the real tools as subprocesses and print each command, so that eve
 varied by hand.
 """
 
+import os
 import shlex
+import signal
 import subprocess
 import sys
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
+
+POLL_S = 5.0  # how often a running command is checked
 
 
 def lerobot_bin(name: str) -> str:
@@ -17,18 +22,64 @@ def lerobot_bin(name: str) -> str:
     return str(local) if local.exists() else name
 
 
-def run_logged(cmd: Sequence[str], log: Path | None = None) -> None:
-    """Run `cmd`, printing it first; with `log`, its output goes to that file (quoted on failure)."""
+def run_logged(
+    cmd: Sequence[str], log: Path | None = None, done: Callable[[], bool] | None = None, grace_s: float = 120.0
+) -> None:
+    """Run `cmd`, printing it first; with `log`, its output goes to that file (quoted on failure).
+
+    `done` tells when the command's work is complete (e.g. its final checkpoint is written). A command still
+    running `grace_s` seconds after that is stopped with its whole process group and counts as finished: under a
+    multi-process launcher a rank can hang in the process-group teardown after training has ended (gloo's
+    `destroy_process_group`), which would otherwise block the pipeline forever."""
     print("\n$ " + shlex.join(cmd), flush=True)
     if log is None:
         subprocess.run(list(cmd), check=True)
         return
     log.parent.mkdir(parents=True, exist_ok=True)
     with log.open("w") as handle:
-        proc = subprocess.run(list(cmd), stdout=handle, stderr=subprocess.STDOUT)
-    if proc.returncode:
+        proc = subprocess.Popen(list(cmd), stdout=handle, stderr=subprocess.STDOUT, start_new_session=True)
+        try:
+            returncode = _wait(proc, done, grace_s)
+        except BaseException:
+            _stop_group(proc)
+            raise
+    if returncode is None:
+        note = f"{Path(cmd[0]).name} was still running {grace_s:.0f} s after its work was complete: stopped"
+        print(f"warning: {note} (log: {log})", flush=True)
+        with log.open("a") as handle:
+            handle.write(f"\n{note}\n")
+    elif returncode:
         tail = "".join(log.read_text().splitlines(keepends=True)[-40:])
-        raise RuntimeError(f"{Path(cmd[0]).name} failed with exit code {proc.returncode} (log: {log}):\n{tail}")
+        raise RuntimeError(f"{Path(cmd[0]).name} failed with exit code {returncode} (log: {log}):\n{tail}")
+
+
+def _wait(proc: subprocess.Popen, done: Callable[[], bool] | None, grace_s: float) -> int | None:
+    """The exit code, or None when the process outlived its completed work by `grace_s` and was stopped."""
+    completed_at: float | None = None
+    while True:
+        try:
+            return proc.wait(timeout=POLL_S)
+        except subprocess.TimeoutExpired:
+            pass
+        if completed_at is None:
+            completed_at = time.monotonic() if done is not None and done() else None
+        elif time.monotonic() - completed_at > grace_s:
+            _stop_group(proc)
+            return None
+
+
+def _stop_group(proc: subprocess.Popen) -> None:
+    """Terminate the process and everything it started (its own session), killing what ignores SIGTERM."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            return
+        try:
+            proc.wait(timeout=POLL_S)
+            return
+        except subprocess.TimeoutExpired:
+            continue
 
 
 def train_command(

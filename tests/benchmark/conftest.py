@@ -3,6 +3,7 @@ each stage under torchrun with two processes): the continual-learning test check
 starts from it."""
 
 import os
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +13,27 @@ import pytest
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 CLI = str(Path(sys.executable).parent / "lerobot-kvm")
 LAUNCHER = "--launcher=torchrun --standalone --nproc_per_node=2"  # every stage trains in two processes (gloo)
+
+
+def _text(output: str | bytes | None) -> str:
+    return output.decode(errors="replace") if isinstance(output, bytes) else output or ""
+
+
+def _newest_logs(root: Path, n: int = 3, lines: int = 25) -> str:
+    """The last lines of the `n` stage logs written last under `root`: where a run stopped or hung."""
+    logs = sorted(root.rglob("*.log"), key=lambda p: p.stat().st_mtime)[-n:]
+    return "".join(f"\n--- {p}\n" + "".join(p.read_text(errors="replace").splitlines(True)[-lines:]) for p in logs)
+
+
+def run_cli(cmd: list[str], env: dict[str, str], timeout: float, logs: Path) -> subprocess.CompletedProcess:
+    """Run one of our CLIs; a failure or a timeout quotes its output and the newest stage logs under `logs`."""
+    try:
+        proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired as err:
+        pytest.fail(f"timed out after {timeout} s: {shlex.join(cmd)}\n{_text(err.stdout)[-3000:]}{_newest_logs(logs)}")
+    if proc.returncode:
+        pytest.fail(f"exit code {proc.returncode}: {shlex.join(cmd)}\n{proc.stdout[-3000:]}{proc.stderr[-5000:]}")
+    return proc
 
 
 @pytest.fixture(scope="session")
@@ -30,14 +52,13 @@ def tiny_pool(tmp_path_factory, cli_env) -> dict:
         f"--dataset-root={base / 'data'}",
         LAUNCHER,
     ]
-    proc = subprocess.run(cmd, env=cli_env, capture_output=True, text=True, timeout=1500)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-5000:]
+    run_cli(cmd, cli_env, 1500, base)
     return {
         "base": base,
         "out": base / "bench" / "pool",
         "data": base / "data",
         "cmd": cmd,
-        "env": cli_env,
         "cli": CLI,
         "launcher": LAUNCHER,
+        "run": lambda cmd, timeout: run_cli(cmd, cli_env, timeout, base),
     }

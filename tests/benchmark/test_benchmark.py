@@ -1,7 +1,6 @@
 """The benchmark: config validation (fast) and a tiny real run of every method from the tiny pool (slow)."""
 
 import json
-import subprocess
 from pathlib import Path
 
 import pytest
@@ -114,8 +113,7 @@ def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
     config_path.write_text(json.dumps(config))
     out = base / "bench"
     cmd = [tiny_pool["cli"], "benchmark", f"--config={config_path}", f"--output-dir={out}", tiny_pool["launcher"]]
-    proc = subprocess.run(cmd, env=tiny_pool["env"], capture_output=True, text=True, timeout=1200)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-5000:]
+    proc = tiny_pool["run"](cmd, 1200)
     assert "lerobot-train" not in proc.stdout  # the pool grown by train-continual is reused as it is
 
     results = json.loads((out / "results.json").read_text())
@@ -157,8 +155,7 @@ def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
 
     # A second invocation finds every (method, run) on disk and runs no episode again.
     stamps = {p: p.stat().st_mtime_ns for p in (out / "episodes").rglob("run_*.json")}
-    proc = subprocess.run(cmd, env=tiny_pool["env"], capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    tiny_pool["run"](cmd, 600)
     assert {p: p.stat().st_mtime_ns for p in stamps} == stamps
     assert json.loads((out / "results.json").read_text())["overhead"] == results["overhead"]  # measured once
     assert not list((out / "episodes").rglob("*.partial"))  # finished runs keep no per-pass state

@@ -1,7 +1,6 @@
 """The continual-learning sequence: config validation (fast) and a tiny real run of every method (slow)."""
 
 import json
-import subprocess
 from pathlib import Path
 
 import pytest
@@ -87,8 +86,7 @@ def test_tiny_sequence_runs_every_method_through_the_real_clis(tiny_pool):
     assert _identical(pretrained.backbone, second.backbone)
 
     # A second invocation resumes: every stage and evaluation is found on disk and nothing is retrained.
-    proc = subprocess.run(tiny_pool["cmd"], env=tiny_pool["env"], capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0 and "lerobot-train" not in proc.stdout
+    assert "lerobot-train" not in tiny_pool["run"](tiny_pool["cmd"], 600).stdout
 
 
 def test_training_minutes_add_pretraining_and_stages_and_skip_evaluation_only_methods():

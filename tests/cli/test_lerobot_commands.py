@@ -1,8 +1,13 @@
-"""The `lerobot-train` command lines the benchmark and `train-continual` build."""
+"""The `lerobot-train` command lines the benchmark and `train-continual` build, and how they are run."""
 
+import sys
+import time
 from pathlib import Path
 
-from lerobot_kvm.cli.lerobot_commands import train_command
+import pytest
+
+from lerobot_kvm.cli import lerobot_commands
+from lerobot_kvm.cli.lerobot_commands import run_logged, train_command
 
 
 def _flag(cmd: list[str], name: str) -> str:
@@ -21,3 +26,41 @@ def test_under_a_launcher_each_rank_loads_its_own_batches():
     assert Path(cmd[0]).name == "torchrun" and cmd[1:3] == launcher[1:]
     assert Path(cmd[3]).name == "lerobot-train"
     assert _flag(cmd, "num_workers") == "0"
+
+
+def _alive(pid: int) -> bool:
+    """Running (a zombie waiting to be reaped has finished)."""
+    stat = Path(f"/proc/{pid}/stat")
+    try:
+        return stat.read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def test_a_command_that_outlives_its_completed_work_is_stopped_with_its_children(tmp_path, monkeypatch):
+    """A launcher whose rank hangs after the final checkpoint: the stage counts as finished, nothing is left."""
+    monkeypatch.setattr(lerobot_commands, "POLL_S", 0.1)
+    marker, child = tmp_path / "done", tmp_path / "child.pid"
+    hang = (
+        "import pathlib, signal, subprocess, sys, time;"
+        "signal.signal(signal.SIGTERM, signal.SIG_IGN);"  # a rank that ignores SIGTERM
+        f"p = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)']);"
+        f"pathlib.Path({str(child)!r}).write_text(str(p.pid));"
+        f"pathlib.Path({str(marker)!r}).touch(); time.sleep(600)"
+    )
+    log = tmp_path / "stage.log"
+    start = time.monotonic()
+    run_logged([sys.executable, "-c", hang], log, done=marker.exists, grace_s=0.5)
+    assert time.monotonic() - start < 30
+    assert "after its work was complete: stopped" in log.read_text()
+    pid = int(child.read_text())
+    deadline = time.monotonic() + 5
+    while _alive(pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _alive(pid)
+
+
+def test_a_failing_command_raises_with_its_log_tail(tmp_path):
+    log = tmp_path / "stage.log"
+    with pytest.raises(RuntimeError, match="exit code 3(.|\n)*boom"):
+        run_logged([sys.executable, "-c", "print('boom'); raise SystemExit(3)"], log, done=lambda: False)
