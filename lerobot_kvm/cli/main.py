@@ -1,6 +1,7 @@
 """`lerobot-kvm`: the project's own commands (LeRobot's CLIs do training and evaluation)."""
 
 import argparse
+import signal
 import sys
 
 from . import (
@@ -28,7 +29,18 @@ COMMANDS = {
 }
 
 
+def exit_on_sigterm() -> None:
+    """A SIGTERM unwinds like Ctrl-C: the `lerobot-train` / `lerobot-eval` a pipeline started runs in its own
+    session (see `run_logged`) and is stopped on the way out, and half-written outputs are cleaned up."""
+
+    def _exit(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, _exit)
+
+
 def main(argv: list[str] | None = None) -> int:
+    exit_on_sigterm()
     parser = argparse.ArgumentParser(prog="lerobot-kvm", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     for module in COMMANDS.values():

@@ -1,5 +1,7 @@
 """The `lerobot-train` command lines the benchmark and `train-continual` build, and how they are run."""
 
+import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -64,3 +66,28 @@ def test_a_failing_command_raises_with_its_log_tail(tmp_path):
     log = tmp_path / "stage.log"
     with pytest.raises(RuntimeError, match="exit code 3(.|\n)*boom"):
         run_logged([sys.executable, "-c", "print('boom'); raise SystemExit(3)"], log, done=lambda: False)
+
+
+def test_a_terminated_pipeline_stops_the_command_it_started(tmp_path):
+    """`kill` of `lerobot-kvm` reaches the lerobot-train it runs, although that runs in a session of its own."""
+    child = tmp_path / "child.pid"
+    sleeper = f"import os, pathlib, time; pathlib.Path({str(child)!r}).write_text(str(os.getpid())); time.sleep(600)"
+    pipeline = (
+        "import pathlib, sys\n"
+        "from lerobot_kvm.cli.main import exit_on_sigterm\n"
+        "from lerobot_kvm.cli.lerobot_commands import run_logged\n"
+        "exit_on_sigterm()\n"
+        f"run_logged([sys.executable, '-c', {sleeper!r}], pathlib.Path({str(tmp_path / 'stage.log')!r}))\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", pipeline])
+    deadline = time.monotonic() + 120
+    while not child.exists() or not child.read_text():
+        assert proc.poll() is None and time.monotonic() < deadline
+        time.sleep(0.1)
+    proc.terminate()
+    assert proc.wait(timeout=60) == 128 + signal.SIGTERM
+    pid = int(child.read_text())
+    deadline = time.monotonic() + 10
+    while _alive(pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _alive(pid)
