@@ -15,10 +15,6 @@ CLI = str(Path(sys.executable).parent / "lerobot-kvm")
 LAUNCHER = "--launcher=torchrun --standalone --nproc_per_node=2"  # every stage trains in two processes (gloo)
 
 
-def _text(output: str | bytes | None) -> str:
-    return output.decode(errors="replace") if isinstance(output, bytes) else output or ""
-
-
 def _newest_logs(root: Path, n: int = 3, lines: int = 25) -> str:
     """The last lines of the `n` stage logs written last under `root`: where a run stopped or hung."""
     logs = sorted(root.rglob("*.log"), key=lambda p: p.stat().st_mtime)[-n:]
@@ -26,14 +22,19 @@ def _newest_logs(root: Path, n: int = 3, lines: int = 25) -> str:
 
 
 def run_cli(cmd: list[str], env: dict[str, str], timeout: float, logs: Path) -> subprocess.CompletedProcess:
-    """Run one of our CLIs; a failure or a timeout quotes its output and the newest stage logs under `logs`."""
-    try:
-        proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout)
-    except subprocess.TimeoutExpired as err:
-        pytest.fail(f"timed out after {timeout} s: {shlex.join(cmd)}\n{_text(err.stdout)[-3000:]}{_newest_logs(logs)}")
+    """Run one of our CLIs; a failure or a timeout quotes its output and the newest stage logs under `logs`.
+
+    A timed-out CLI gets SIGTERM, so it stops the `lerobot-train` / `lerobot-eval` it started on its way out."""
+    with subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as proc:
+        try:
+            stdout, stderr = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.terminate()
+            stdout, _ = proc.communicate(timeout=60)
+            pytest.fail(f"timed out after {timeout} s: {shlex.join(cmd)}\n{stdout[-3000:]}{_newest_logs(logs)}")
     if proc.returncode:
-        pytest.fail(f"exit code {proc.returncode}: {shlex.join(cmd)}\n{proc.stdout[-3000:]}{proc.stderr[-5000:]}")
-    return proc
+        pytest.fail(f"exit code {proc.returncode}: {shlex.join(cmd)}\n{stdout[-3000:]}{stderr[-5000:]}")
+    return subprocess.CompletedProcess(cmd, proc.returncode, stdout, stderr)
 
 
 @pytest.fixture(scope="session")
