@@ -24,6 +24,12 @@ import torch.nn.functional as F  # noqa: N812
 from torch import Tensor, nn
 
 
+def _required(query: Tensor | None) -> Tensor:
+    if query is None:
+        raise ValueError("the KVM context encoder uses the query embedding q(x), but none was given")
+    return query
+
+
 def mlp(in_dim: int, hidden: list[int], out_dim: int) -> nn.Sequential:
     layers: list[nn.Module] = []
     prev = in_dim
@@ -51,8 +57,7 @@ class ContextEncoder(nn.Module):
         """c_raw [B, raw_dim] from the normalized sensed context [B, C] and the query embedding [B, D_q]."""
         if not self.query_dim:
             return sensed
-        if query is None:
-            raise ValueError("the KVM context encoder uses the query embedding q(x), but none was given")
+        query = _required(query)
         return torch.cat([sensed, query.to(sensed) * self.query_scale], dim=-1)
 
     def residual_parts(self, c_raw: Tensor, recon: Tensor) -> Tensor:
@@ -81,19 +86,61 @@ class ContextEncoder(nn.Module):
             w.append(torch.full((self.query_dim,), self.query_weight / (self.query_dim * float(scale[1]))))
         return torch.cat(w).to(scale.device)
 
-    @staticmethod
-    def _run(net: nn.Sequential, x: Tensor) -> Tensor:
-        """The MLP with functional calls (no module-call overhead: this runs at every control step)."""
-        for layer in net:
-            x = F.linear(x, layer.weight, layer.bias) if isinstance(layer, nn.Linear) else torch.relu(x)
-        return x
-
-    def code_and_sigma2(self, c_raw: Tensor, dim_weights: Tensor) -> tuple[Tensor, Tensor]:
-        """(mu_c, sigma_c^2) in the fewest operations: sigma_c^2 = squared residual @ dim_weights."""
-        mu = self._run(self.encoder, c_raw)
-        return mu, (c_raw - self._run(self.decoder, mu)).square() @ dim_weights
+    def gate_probe(self, scale: Tensor) -> "GateProbe":
+        """The encoder folded for the smart gate's per-step test with the residual scales `scale`."""
+        return GateProbe(self, self.dim_weights(scale))
 
     def forward(self, c_raw: Tensor) -> tuple[Tensor, Tensor]:
         """(mu_c [B, latent_dim], residual parts [B, P])."""
         mu = self.encoder(c_raw)
         return mu, self.residual_parts(c_raw, self.decoder(mu))
+
+
+class GateProbe:
+    """E_c rearranged for the smart gate's test at every control step: the same sigma_c^2 in fewer operations.
+
+    At these sizes a step's cost is the number of tensor operations, not their arithmetic, so the probe folds what
+    is constant between weight updates: the query's sqrt(D_q) rescaling into the first layer, the encoder's last
+    layer and the decoder's first (no ReLU between them) into one layer, and the per-dimension residual weights w
+    into the decoder's last layer, so that sigma_c^2 = ||sqrt(w) * (recon - c_raw)||^2 is one more product. mu_c,
+    needed only where the gate opens, comes from the encoder's last hidden layer on request (`code`). A snapshot:
+    rebuild it whenever the weights or the scales change (the smart gate does, on refresh).
+    """
+
+    @torch.no_grad()
+    def __init__(self, encoder: ContextEncoder, dim_weights: Tensor) -> None:
+        enc = [m for m in encoder.encoder if isinstance(m, nn.Linear)]
+        dec = [m for m in encoder.decoder if isinstance(m, nn.Linear)]
+        sensed = encoder.sensed_dim
+        input_scale = torch.ones(encoder.raw_dim, device=dim_weights.device)
+        input_scale[sensed:] = encoder.query_scale  # c_raw = [sensed, query] * input_scale
+        first = enc[0].weight * input_scale
+        joined = (dec[0].weight @ enc[-1].weight, dec[0].weight @ enc[-1].bias + dec[0].bias)
+        self.layers = [
+            (first, enc[0].bias.detach().clone()),
+            *[(m.weight.detach().clone(), m.bias.detach().clone()) for m in enc[1:-1]],
+            joined,
+            *[(m.weight.detach().clone(), m.bias.detach().clone()) for m in dec[1:-1]],
+        ]
+        self.code_after = len(enc) - 2  # the layer whose output is the encoder's last hidden layer
+        self.code_layer = (enc[-1].weight.detach().clone(), enc[-1].bias.detach().clone())
+        root = dim_weights.sqrt()
+        self.out_layer = (dec[-1].weight * root.unsqueeze(-1), dec[-1].bias * root)
+        self.minus_input = -(root * input_scale)
+        self.uses_query = bool(encoder.query_dim)
+
+    def __call__(self, sensed: Tensor, query: Tensor | None) -> tuple[Tensor, Tensor]:
+        """(sigma_c^2 [B], the encoder's last hidden layer [B, H]) of the normalized sensed context [B, C] and the
+        query embedding [B, D_q] (unscaled, as `ContextEncoder.raw_context` takes it)."""
+        x = torch.cat([sensed, _required(query).to(sensed)], dim=-1) if self.uses_query else sensed
+        h = hidden = x
+        for i, (weight, bias) in enumerate(self.layers):
+            h = torch.relu(F.linear(h, weight, bias))
+            if i == self.code_after:
+                hidden = h
+        residual = F.linear(h, *self.out_layer).addcmul_(x, self.minus_input)
+        return torch.linalg.vecdot(residual, residual), hidden
+
+    def code(self, hidden: Tensor) -> Tensor:
+        """mu_c [B, latent_dim] from the encoder's last hidden layer."""
+        return F.linear(hidden, *self.code_layer)

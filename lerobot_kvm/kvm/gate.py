@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from torch import Tensor, nn
 
-from .context_encoder import ContextEncoder
+from .context_encoder import ContextEncoder, GateProbe
 from .memory import ROUTINE, SampleBuffer
 
 
@@ -55,7 +55,7 @@ class SmartGate(nn.Module):
         self.register_buffer("stats", torch.tensor([float("-inf"), 0.0, 0.0]))  # tau, mean, std
         self.register_buffer("scale", torch.ones(n_parts))  # residual scale per modality
         self.stale = True  # runtime only: stats must be recomputed before the next decision
-        self.dim_weights: Tensor | None = None  # runtime cache: sigma_c^2 = squared residual @ dim_weights
+        self._probe: GateProbe | None = None  # runtime cache: the encoder folded for the per-step test
         self.tau_value = float("-inf")  # runtime cache of stats[0] as a Python float
         self.failures = failures  # gives the contexts of failures met online, where the gate opens too
         self.similarity = similarity
@@ -104,10 +104,17 @@ class SmartGate(nn.Module):
             tau, mean, std = adaptive_threshold(encoder.sigma2(parts, self.scale), self.k)
             stats = torch.stack([tau, mean, std])
         self.stats.copy_(stats)
-        self.dim_weights = encoder.dim_weights(self.scale)
+        self._probe = None  # built on first use: training refreshes at every step and never tests the gate
         self.tau_value = float(self.stats[0])
         self.stale = False
         return self.stats
+
+    def probe(self, encoder: ContextEncoder) -> GateProbe:
+        """The encoder folded with the current residual scales for the per-step test (call after ensure_fresh)."""
+        if self._probe is None:
+            with torch.inference_mode(False):  # a cache built under inference mode must serve outside it too
+                self._probe = encoder.gate_probe(self.scale)
+        return self._probe
 
     def similar(self, mu: Tensor, ref: Tensor) -> Tensor:
         """[B] bool: codes mu [B, L] similar to at least one of the codes ref [M, L] (call after ensure_fresh).
@@ -117,10 +124,15 @@ class SmartGate(nn.Module):
         sims = F.normalize(mu - center, dim=-1) @ F.normalize(ref - center, dim=-1).T
         return sims.amax(-1) >= self.similarity
 
+    @property
+    def watches_failures(self) -> bool:
+        """The gate opens near failures met online too (`near_failure` needs the codes)."""
+        return self.fail_codes is not None and self.center is not None
+
     def near_failure(self, mu: Tensor) -> Tensor | None:
         """[B] bool: codes similar to a failure's context, and more than to any safe reference (None when there is
         no failure; call after ensure_fresh)."""
-        if self.fail_codes is None or self.center is None:
+        if not self.watches_failures:
             return None
         unit = F.normalize(mu - self.center, dim=-1)
         to_failure = (unit @ self.fail_codes.T).amax(-1)

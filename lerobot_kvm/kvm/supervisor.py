@@ -110,7 +110,8 @@ class KnowledgeValidityModule(nn.Module):
         Rows are independent, so a non-finite context row only makes its own code and sigma_c^2 non-finite: one
         finiteness test of sigma_c^2 flags non-finite contexts and codes alike."""
         self.gate.ensure_fresh(self.encoder, self.gate_memory)
-        mu, sigma2 = self.encoder.code_and_sigma2(c_raw, self.gate.dim_weights)
+        mu, parts = self.encoder(c_raw)
+        sigma2 = self.encoder.sigma2(parts, self.gate.scale)
         return mu, sigma2, torch.isfinite(sigma2)
 
     def risk_energy(self, h: Tensor, risk_model: str | None = None) -> Tensor:
@@ -159,11 +160,12 @@ class KnowledgeValidityModule(nn.Module):
     def threshold(self) -> Tensor:
         return self.gate.threshold(self.encoder, self.gate_memory)
 
-    def gate_open(self, mu: Tensor, sigma2: Tensor) -> Tensor:
+    def gate_open(self, mu: Tensor | None, sigma2: Tensor) -> Tensor:
         """[B] bool: the smart gate's decision: sigma_c^2 above tau (a non-finite one included), or a context
-        similar to a failure met online (call after the gate is fresh)."""
+        similar to a failure met online (call after the gate is fresh; mu may be None unless the gate
+        `watches_failures`)."""
         gate = ~(sigma2 <= self.gate.tau_value)
-        near = self.gate.near_failure(mu)
+        near = None if mu is None else self.gate.near_failure(mu)
         return gate if near is None else gate | near
 
     def assess(
@@ -184,15 +186,17 @@ class KnowledgeValidityModule(nn.Module):
         gate test only.
         """
         cfg = self.config
-        c_raw = self.raw_context(sensed, query)
         self.gate.ensure_fresh(self.encoder, self.gate_memory)
-        mu, sigma2 = self.encoder.code_and_sigma2(c_raw, self.gate.dim_weights)
+        probe = self.gate.probe(self.encoder)
+        sigma2, hidden = probe(sensed, query)
+        mu = probe.code(hidden) if self.gate.watches_failures else None
         sigma2_gate = None
         if cfg.context_window > 1:
             if self._sigma_history and self._sigma_history[-1].shape != sigma2.shape:
                 self._sigma_history.clear()
             self._sigma_history.append(sigma2)
             sigma2_gate = torch.stack(list(self._sigma_history)).mean(0)
+        compared = sigma2 if sigma2_gate is None else sigma2_gate
         tau = self.gate.tau_value
         # A non-finite sigma^2 fails `<=` and `isfinite`: non-finite contexts and codes open the gate, and are
         # flagged invalid once it is open (rows are independent, so they spoil no other row).
@@ -200,8 +204,10 @@ class KnowledgeValidityModule(nn.Module):
             gate = torch.ones_like(sigma2, dtype=torch.bool)
         elif self.gate_override == "closed":
             gate = ~torch.isfinite(sigma2)
+        elif mu is None and _at_most(compared, tau):
+            gate = None  # closed everywhere, decided in the fewest operations (telemetry makes the mask on demand)
         else:
-            gate = self.gate_open(mu, sigma2 if sigma2_gate is None else sigma2_gate)
+            gate = self.gate_open(mu, compared)
         if all_active is None:
             all_active = bool(active.all())
         common = dict(
@@ -213,19 +219,21 @@ class KnowledgeValidityModule(nn.Module):
             tau_v=cfg.tau_v,
             candidate_min_alpha=cfg.candidate_min_alpha,
         )
-        if cfg.force_validity is None and not bool(gate.any()):  # gate closed: v = 1 for every active skill
+        if cfg.force_validity is None and (gate is None or not bool(gate.any())):  # closed: v = 1 for every skill
             if all_active and corrections is None:
                 return None, KvmStepTelemetry(alpha=alphas, **common)  # the plain CODA prompt
             v = active.to(sigma2.dtype).expand(sigma2.shape[0], -1)
             weights = v if corrections is None else v.masked_fill(corrections[0], 0.0)
             return weights, KvmStepTelemetry(alpha=alphas, validity=v, skill_weight=weights, **common)
+        if gate is None:
+            gate = common["gate"] = torch.zeros_like(sigma2, dtype=torch.bool)
         valid = torch.isfinite(sigma2)
         energy = sigma2.new_full((sigma2.shape[0], active.shape[0]), float("nan"))
         if cfg.force_validity is not None:
             v = torch.full_like(energy, cfg.force_validity)
             invalid = ~valid.unsqueeze(-1).expand_as(v)
         else:
-            e = self.skill_energies(mu, active.shape[0])
+            e = self.skill_energies(probe.code(hidden) if mu is None else mu, active.shape[0])
             energy = torch.where(gate.unsqueeze(-1), e, energy)
             v = torch.where(gate.unsqueeze(-1), validity(e, cfg.gamma, cfg.l0), torch.ones_like(e))
             invalid = ~valid.unsqueeze(-1) | (gate.unsqueeze(-1) & ~torch.isfinite(e))
@@ -539,6 +547,11 @@ class KnowledgeValidityModule(nn.Module):
 
     def n_permanent(self) -> int:
         return int(((self.fail_online.flags & PERMANENT) > 0).sum())
+
+
+def _at_most(values: Tensor, bound: float) -> bool:
+    """Every value <= bound (False where one is NaN), with a single operation for a single row."""
+    return float(values if values.numel() == 1 else values.max()) <= bound
 
 
 __all__ = ["KnowledgeValidityModule", "SYNTHETIC"]

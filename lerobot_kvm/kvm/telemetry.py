@@ -32,7 +32,7 @@ class KvmStepTelemetry:
         self,
         sigma2: Tensor,
         tau: Tensor,
-        gate: Tensor,
+        gate: Tensor | None,
         alpha: Tensor | Callable[[], Tensor],
         active: Tensor,
         sigma2_gate: Tensor | None = None,
@@ -45,7 +45,7 @@ class KvmStepTelemetry:
     ) -> None:
         self.sigma2 = sigma2
         self.tau = tau
-        self.gate = gate
+        self._gate = gate
         self._alpha = alpha
         self.active = active
         self._sigma2_gate = sigma2_gate
@@ -61,6 +61,12 @@ class KvmStepTelemetry:
         if callable(self._alpha):
             self._alpha = self._alpha()
         return self._alpha
+
+    @property
+    def gate(self) -> Tensor:
+        if self._gate is None:  # None: closed everywhere
+            self._gate = torch.zeros_like(self.sigma2, dtype=torch.bool)
+        return self._gate
 
     @property
     def sigma2_gate(self) -> Tensor:

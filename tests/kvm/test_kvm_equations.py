@@ -31,9 +31,6 @@ class _FirstColumnIsTheResidual(nn.Module):
     def sigma2(self, parts: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
         return (parts / scale).sum(-1)
 
-    def dim_weights(self, scale: torch.Tensor) -> torch.Tensor:
-        return torch.tensor([1.0 / float(scale[0]), 0.0])
-
 
 def test_eq1_gate_uses_the_last_n_successful_interactions() -> None:
     gate = SmartGate(window=4, raw_dim=2, k=3.0, min_count=3, n_parts=1)
@@ -89,6 +86,20 @@ def test_sigma2_is_the_residual_of_each_modality_in_units_of_its_safe_scale() ->
     torch.testing.assert_close(((c_raw - recon) ** 2) @ enc.dim_weights(scale), enc.sigma2(parts, scale))
     torch.testing.assert_close(parts[0, 0], ((c_raw - recon)[0, :2] ** 2).mean())
     torch.testing.assert_close(parts[0, 1], ((c_raw - recon)[0, 2:] ** 2).mean())
+
+
+@pytest.mark.parametrize(("hidden", "use_query"), [([8, 6], True), ([8], True), ([8, 6, 5], False)])
+def test_gate_probe_gives_the_code_and_sigma2_of_the_encoder(hidden: list[int], use_query: bool) -> None:
+    torch.manual_seed(0)
+    enc = ContextEncoder(sensed_dim=3, query_dim=4, hidden=hidden, latent_dim=2, use_query=use_query, query_weight=0.5)
+    sensed, query = torch.randn(5, 3), torch.randn(5, 4)
+    scale = torch.tensor([0.3, 0.02])[: 2 if use_query else 1]
+    mu, parts = enc(enc.raw_context(sensed, query))
+    sigma2, hidden_code = enc.gate_probe(scale)(sensed, query)
+    torch.testing.assert_close(sigma2, enc.sigma2(parts, scale))
+    torch.testing.assert_close(enc.gate_probe(scale).code(hidden_code), mu)
+    sensed[1, 0] = float("nan")
+    assert torch.isfinite(enc.gate_probe(scale)(sensed, query)[0]).tolist() == [True, False, True, True, True]
 
 
 @pytest.mark.parametrize(
