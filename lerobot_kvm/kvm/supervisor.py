@@ -8,6 +8,7 @@ energies into validities (eq. 2) and the validities into skill weights for the f
 update of the feedback API (see `kvm.online`).
 """
 
+import sys
 from collections import deque
 from collections.abc import Callable
 
@@ -26,6 +27,7 @@ from .metabolism import SkillMetabolism
 from .telemetry import KvmStepTelemetry
 
 GATE_OVERRIDES = (None, "open", "closed")
+_FINITE_MAX = sys.float_info.max
 
 
 class KnowledgeValidityModule(nn.Module):
@@ -200,12 +202,14 @@ class KnowledgeValidityModule(nn.Module):
         tau = self.gate.tau_value
         # A non-finite sigma^2 fails `<=` and `isfinite`: non-finite contexts and codes open the gate, and are
         # flagged invalid once it is open (rows are independent, so they spoil no other row).
+        # None: closed everywhere, decided in the fewest operations (the telemetry makes the mask on demand). The
+        # "closed" override (overhead measurement) takes the same test with a bound no finite sigma^2 exceeds.
         if self.gate_override == "open" or not cfg.smart_gate:
             gate = torch.ones_like(sigma2, dtype=torch.bool)
         elif self.gate_override == "closed":
-            gate = ~torch.isfinite(sigma2)
+            gate = None if _at_most(sigma2, _FINITE_MAX) else ~torch.isfinite(sigma2)
         elif mu is None and _at_most(compared, tau):
-            gate = None  # closed everywhere, decided in the fewest operations (telemetry makes the mask on demand)
+            gate = None
         else:
             gate = self.gate_open(mu, compared)
         if all_active is None:
