@@ -101,6 +101,11 @@ def test_non_finite_context_or_energy_is_invalid_never_valid(make_policy, make_b
     assert tele.invalid[1].all() and tele.invalid[2].all() and not tele.invalid[0].any()
     assert (tele.validity[1:3] == 0).all() and (weights[1:3] == 0).all()
     assert tele.gate[1] and tele.gate[2]
+    policy.kvm.set_gate_override("closed")  # forced shut, yet a non-finite context still opens it and is invalid
+    weights, tele = policy.kvm.assess(context, query, alphas, policy.kvm_active_skills())
+    assert tele.gate.tolist() == [False, True, True, False]
+    assert tele.invalid[1:3].all() and not tele.invalid[[0, 3]].any() and (weights[1:3] == 0).all()
+    policy.kvm.set_gate_override(None)
 
     def nan_energy(h):
         return torch.full(h.shape[:-1], float("nan"))
