@@ -1,7 +1,9 @@
 """Per-step latency of the policy with the KVM off, on with the gate closed, and on with the gate forced open.
 
 All three modes run in one process on the same inputs, interleaved in blocks (off, closed, open, off, ...) so
-that load drifts on a shared machine hit every mode alike; the statistic is the median per-call latency.
+that load drifts on a shared machine hit every mode alike; the statistic is the median per-call latency. The
+paired ratios divide each block's median by the KVM-off block's of the same rotation and take the median over
+rotations: a drift slower than one rotation cancels in them, where it only shifts the pooled medians.
 
 * model call: one `predict_action_chunk` (query, CODA relevances, KVM assessment, fused prompt, backbone) --
   the unit the paper's overhead (App. H.2) is about; the acceptance ratios are taken here.
@@ -21,6 +23,11 @@ MODES = ("off", "closed", "open")
 def _set_mode(policy: Any, mode: str) -> None:
     policy.config.kvm.enabled = mode != "off"
     policy.kvm.set_gate_override(None if mode == "off" else mode)
+
+
+def paired_ratio(blocks: list[float], off_blocks: list[float]) -> float:
+    """Median over rotations of a mode's block median relative to the KVM-off block median of the same rotation."""
+    return statistics.median(b / o for b, o in zip(blocks, off_blocks, strict=True))
 
 
 def _time_calls(fn: Any, n: int) -> list[float]:
@@ -43,6 +50,7 @@ def measure_overhead(
     policy.eval()
     calls: dict[str, list[float]] = {m: [] for m in MODES}
     control: dict[str, list[float]] = {m: [] for m in MODES}
+    blocks: dict[str, list[float]] = {m: [] for m in MODES}  # per rotation: the block's median call latency
     n_action = policy.config.n_action_steps
     gate_open: dict[str, bool] = {}
     try:
@@ -61,7 +69,9 @@ def measure_overhead(
         for _ in range(steps // block):
             for mode in MODES:
                 _set_mode(policy, mode)
-                calls[mode] += _time_calls(lambda: policy.predict_action_chunk(batch), block)
+                timed = _time_calls(lambda: policy.predict_action_chunk(batch), block)
+                calls[mode] += timed
+                blocks[mode].append(statistics.median(timed))
                 control[mode] += [t / n_action for t in _time_calls(chunk_of_steps, max(1, block // n_action))]
     finally:
         policy.config.kvm.enabled = enabled
@@ -74,6 +84,8 @@ def measure_overhead(
         "control_step_ms": ctl,
         "ratio_gate_closed": med["closed"] / med["off"],
         "ratio_gate_open": med["open"] / med["off"],
+        "paired_ratio_gate_closed": paired_ratio(blocks["closed"], blocks["off"]),
+        "paired_ratio_gate_open": paired_ratio(blocks["open"], blocks["off"]),
         "control_step_ratio_gate_closed": ctl["closed"] / ctl["off"],
         "control_step_ratio_gate_open": ctl["open"] / ctl["off"],
         "gate_open_check": gate_open,

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from lerobot_kvm.kvm.configuration import KvmConfig
-from lerobot_kvm.kvm.overhead import measure_overhead
+from lerobot_kvm.kvm.overhead import measure_overhead, paired_ratio
 from lerobot_kvm.policy import CodaKvmConfig
 
 CONTEXT = "observation.context"
@@ -283,7 +283,16 @@ def test_overhead_measures_three_modes_on_the_same_inputs(make_policy, make_batc
     assert set(result["model_call_ms"]) == {"off", "closed", "open"}
     assert result["gate_open_check"] == {"off": False, "closed": False, "open": True}
     assert result["ratio_gate_closed"] > 0 and result["ratio_gate_open"] > 0
+    assert result["paired_ratio_gate_closed"] > 0 and result["paired_ratio_gate_open"] > 0
     assert policy.config.kvm.enabled and policy.kvm.gate_override is None  # settings restored
+
+
+def test_paired_ratio_cancels_a_drift_between_rotations() -> None:
+    off = [1.0, 2.0, 4.0]  # the machine slows down rotation by rotation
+    closed = [1.1, 2.4, 4.4]  # 1.1x, 1.2x, 1.1x of the same rotation's off block
+    assert paired_ratio(closed, off) == pytest.approx(1.1)
+    with pytest.raises(ValueError):
+        paired_ratio(closed, off[:2])
 
 
 def test_skill_dropout_trains_the_current_skill_alone_on_some_samples(make_policy, make_batch) -> None:

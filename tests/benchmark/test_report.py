@@ -1,0 +1,23 @@
+"""The benchmark report's tables from measured values."""
+
+from lerobot_kvm.benchmark.report import overhead_table
+
+MEASURED = {
+    "model_call_ms": {"off": 4.0, "closed": 4.3, "open": 5.0},
+    "control_step_ms": {"off": 0.8, "closed": 0.85, "open": 1.0},
+    "ratio_gate_closed": 1.075,
+    "ratio_gate_open": 1.25,
+    "kvm_state_mb": 3.0,
+    "policy_state_mb": 40.0,
+    "threads": 2,
+    "calls_per_mode": 300,
+    "inputs": "egg_vs_stone/prior observation",
+}
+
+
+def test_overhead_table_shows_the_paired_ratios_when_measured() -> None:
+    without = "\n".join(overhead_table(MEASURED))
+    assert "1.075" in without and "paired" not in without  # a report written before the paired ratios
+    paired = dict(MEASURED, paired_ratio_gate_closed=1.061, paired_ratio_gate_open=1.238)
+    row = next(line for line in overhead_table(paired) if "paired" in line)
+    assert "1.061" in row and "1.238" in row
