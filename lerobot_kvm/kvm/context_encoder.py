@@ -97,48 +97,79 @@ class ContextEncoder(nn.Module):
 
 
 class GateProbe:
-    """E_c rearranged for the smart gate's test at every control step: the same sigma_c^2 in fewer operations.
+    """E_c rearranged for the smart gate's test at every control step: the same sigma_c^2 in fewer operations on
+    fewer weights.
 
-    At these sizes a step's cost is the number of tensor operations, not their arithmetic, so the probe folds what
-    is constant between weight updates: the query's sqrt(D_q) rescaling into the first layer, the encoder's last
-    layer and the decoder's first (no ReLU between them) into one layer, and the per-dimension residual weights w
-    into the decoder's last layer, so that sigma_c^2 = ||sqrt(w) * (recon - c_raw)||^2 is one more product. mu_c,
-    needed only where the gate opens, comes from the encoder's last hidden layer on request (`code`). A snapshot:
-    rebuild it whenever the weights or the scales change (the smart gate does, on refresh).
+    At these sizes a step's cost is the number of tensor operations and the weights they read, not their
+    arithmetic. The probe folds what is constant between weight updates: the encoder's last layer and the
+    decoder's first (no ReLU between them) into one layer, the per-dimension residual weights w into the decoder's
+    last layer (so sigma_c^2 = ||sqrt(w) * (recon - c_raw)||^2 is one more product). And the query q(x), 384 of
+    c_raw's dimensions, changes only with the instruction, so its share is computed once per query and reused
+    while it stays the same: its columns of the first layer, and its part of the residual, A h + b(q) with A the
+    decoder's query rows (weighted) and h its last hidden layer. With A = QR (Q orthonormal, R square),
+    ||A h + b||^2 = ||R h + Q^T b||^2 + ||b - Q Q^T b||^2, two sums of squares: the per-step residual has R's
+    rows in place of A's, and the constant second term rides along as one more entry of it. mu_c, needed only
+    where the gate opens, comes from the encoder's last hidden layer on request (`code`). A snapshot: rebuild it
+    whenever the weights or the scales change (the smart gate does, on refresh).
     """
 
     @torch.no_grad()
     def __init__(self, encoder: ContextEncoder, dim_weights: Tensor) -> None:
         enc = [m for m in encoder.encoder if isinstance(m, nn.Linear)]
         dec = [m for m in encoder.decoder if isinstance(m, nn.Linear)]
-        sensed = encoder.sensed_dim
-        input_scale = torch.ones(encoder.raw_dim, device=dim_weights.device)
-        input_scale[sensed:] = encoder.query_scale  # c_raw = [sensed, query] * input_scale
-        first = enc[0].weight * input_scale
+        sensed = self.sensed_dim = encoder.sensed_dim
+        self.uses_query = bool(encoder.query_dim)
+        first = enc[0].weight.detach()
+        self.sensed_first = first[:, :sensed].T.contiguous()  # [C, H]: the right operand of addmm
+        self.query_first = (first[:, sensed:] * encoder.query_scale, enc[0].bias.detach().clone())
         joined = (dec[0].weight @ enc[-1].weight, dec[0].weight @ enc[-1].bias + dec[0].bias)
         self.layers = [
-            (first, enc[0].bias.detach().clone()),
             *[(m.weight.detach().clone(), m.bias.detach().clone()) for m in enc[1:-1]],
             joined,
             *[(m.weight.detach().clone(), m.bias.detach().clone()) for m in dec[1:-1]],
         ]
-        self.code_after = len(enc) - 2  # the layer whose output is the encoder's last hidden layer
+        self.code_after = len(enc) - 2  # the layer (0: the first) whose output is the encoder's last hidden layer
         self.code_layer = (enc[-1].weight.detach().clone(), enc[-1].bias.detach().clone())
         root = dim_weights.sqrt()
-        self.out_layer = (dec[-1].weight * root.unsqueeze(-1), dec[-1].bias * root)
-        self.minus_input = -(root * input_scale)
-        self.uses_query = bool(encoder.query_dim)
+        out = dec[-1].weight * root.unsqueeze(-1)  # [raw_dim, H]
+        bias = dec[-1].bias * root
+        self.minus_sensed = -root[:sensed]
+        self.minus_query = -root[sensed:] * encoder.query_scale
+        self.sensed_bias, self.query_bias = bias[:sensed], bias[sensed:]
+        rows = [out[:sensed]]
+        if self.uses_query:
+            self.query_basis, square = torch.linalg.qr(out[sensed:])
+            rows += [square, torch.zeros_like(square[:1])]  # the last entry carries ||b - Q Q^T b||
+        self.out_weight = torch.cat(rows).T.contiguous()  # [H, C (+ rank + 1)]
+        self._query: Tensor | None = None
+        self._query_terms: tuple[Tensor, Tensor] = (self.query_first[1], self.sensed_bias)
+
+    def _terms(self, query: Tensor | None, like: Tensor) -> tuple[Tensor, Tensor]:
+        """(the first layer's bias plus the query's share [B, H], the residual's offset [B, C + rank + 1]: the
+        sensed part's bias, Q^T b(q) and ||b(q) - Q Q^T b(q)||), recomputed only when the query changes."""
+        if not self.uses_query:
+            return self._query_terms
+        query = _required(query).to(like)
+        last = self._query
+        if last is None or last.shape != query.shape or not torch.equal(last, query):
+            b = torch.addcmul(self.query_bias, query, self.minus_query)
+            along = b @ self.query_basis
+            across = torch.linalg.vector_norm(b - along @ self.query_basis.T, dim=-1, keepdim=True)
+            offset = torch.cat([self.sensed_bias.expand(len(query), -1), along, across], dim=-1)
+            self._query, self._query_terms = query.clone(), (F.linear(query, *self.query_first), offset)
+        return self._query_terms
 
     def __call__(self, sensed: Tensor, query: Tensor | None) -> tuple[Tensor, Tensor]:
         """(sigma_c^2 [B], the encoder's last hidden layer [B, H]) of the normalized sensed context [B, C] and the
         query embedding [B, D_q] (unscaled, as `ContextEncoder.raw_context` takes it)."""
-        x = torch.cat([sensed, _required(query).to(sensed)], dim=-1) if self.uses_query else sensed
-        h = hidden = x
-        for i, (weight, bias) in enumerate(self.layers):
+        first, offset = self._terms(query, sensed)
+        h = hidden = torch.relu(torch.addmm(first, sensed, self.sensed_first))
+        for i, (weight, bias) in enumerate(self.layers, 1):
             h = torch.relu(F.linear(h, weight, bias))
             if i == self.code_after:
                 hidden = h
-        residual = F.linear(h, *self.out_layer).addcmul_(x, self.minus_input)
+        residual = torch.addmm(offset, h, self.out_weight)
+        residual[:, : self.sensed_dim].addcmul_(sensed, self.minus_sensed)
         return torch.linalg.vecdot(residual, residual), hidden
 
     def code(self, hidden: Tensor) -> Tensor:

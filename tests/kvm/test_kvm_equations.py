@@ -4,7 +4,7 @@ import math
 
 import pytest
 import torch
-from torch import nn
+from torch import Tensor, nn
 
 from lerobot_kvm.kvm.context_encoder import ContextEncoder
 from lerobot_kvm.kvm.energy import EnergyModel, JointFeature, RiskClassifier, validity
@@ -100,6 +100,32 @@ def test_gate_probe_gives_the_code_and_sigma2_of_the_encoder(hidden: list[int], 
     torch.testing.assert_close(enc.gate_probe(scale).code(hidden_code), mu)
     sensed[1, 0] = float("nan")
     assert torch.isfinite(enc.gate_probe(scale)(sensed, query)[0]).tolist() == [True, False, True, True, True]
+
+
+def test_gate_probe_follows_a_change_of_query() -> None:
+    """The query's share is reused while the query stays the same, and recomputed as soon as it changes (in
+    value or in batch size), inside or outside inference mode."""
+    torch.manual_seed(0)
+    enc = ContextEncoder(sensed_dim=3, query_dim=4, hidden=[8, 6], latent_dim=2, use_query=True, query_weight=0.5)
+    scale = torch.tensor([0.3, 0.02])
+    probe = enc.gate_probe(scale)
+    sensed = torch.randn(2, 3)
+
+    def reference(query: Tensor) -> Tensor:
+        return enc.sigma2(enc(enc.raw_context(sensed[: len(query)], query))[1], scale)
+
+    first, other = torch.randn(2, 4), torch.randn(2, 4)
+    with torch.no_grad():
+        for query in (first, first.clone(), other, first, other[:1]):
+            torch.testing.assert_close(probe(sensed[: len(query)], query)[0], reference(query))
+        with torch.inference_mode():
+            torch.testing.assert_close(probe(sensed, other)[0], reference(other))
+        torch.testing.assert_close(probe(sensed, other)[0], reference(other))
+        torch.testing.assert_close(probe(sensed, first)[0], reference(first))
+        query = first.clone()
+        probe(sensed, query)
+        query += 1.0  # the caller's tensor changes in place: the probe kept a copy to compare with
+        torch.testing.assert_close(probe(sensed, query)[0], reference(query))
 
 
 @pytest.mark.parametrize(
