@@ -86,7 +86,9 @@ class KvmConfig:
     fail_online_capacity: int = 1024  # provisional and confirmed (permanent) h_fail negatives
     # Rare safe frames (a contact impact seen in a fraction of a percent of a skill's frames) are too few in a
     # uniform replay to hold a low energy against the synthetic negatives. Safe frames the energy model still
-    # judges invalid when it meets them (v < hard_safe_validity) go into a FIFO that is replayed every step.
+    # judges invalid when it meets them (v < hard_safe_validity) go into a FIFO that is replayed every step: new
+    # frames offline, and the safe samples a feedback's update replays (the few negatives of one failure must
+    # not suppress the culprit where its own safe experience lies).
     hard_safe_capacity: int = 512
     hard_safe_replay: int = 16  # replayed hard safe samples per offline / online step (0: off)
     hard_safe_validity: float = 0.5

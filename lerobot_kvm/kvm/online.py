@@ -10,10 +10,12 @@ after an attempt:
   last K steps) form a low-confidence hypothesis, or add evidence to a matching one. The failure context paired
   with the culprit becomes provisional h_fail negatives; a corrective demonstration gives positives for the
   skill that demonstrates the safe strategy (its name in `demonstration["skill"]`, else the most relevant
-  alternative), in its own contexts and in the failure context, and, where its contexts are unfamiliar, more
-  negatives for the culprit. Then a fixed budget of gradient steps updates the KVM, replaying the safe memory so
-  that what was safe stays safe. This first update is what lowers v(culprit, failure context) already on the next
-  attempt; the hypothesis governs confirmation.
+  alternative), in its own contexts and in the failure context, and, where its contexts lie outside the
+  culprit's safe experience (`known_safe`), more negatives for the culprit: the demonstration ran where the
+  culprit failed, and once the shift shows, its contexts are what the culprit would meet there. Then a fixed
+  budget of gradient steps updates the KVM, replaying the safe memory so that what was safe stays safe (the safe
+  samples the update judges invalid are replayed at every step after, `kvm.hard_safe_replay`). This first update
+  is what lowers v(culprit, failure context) already on the next attempt; the hypothesis governs confirmation.
   With a demonstration, the knowledge gap is tested at once (`kvm.gap_on_failure`): if every alternative to
   the culprit is weak in the failure context, suppression alone would leave no strategy, so a new *gated* skill
   that corrects the culprit (`fusion.correction_validity`) is begun and seeded from the demonstration: KVM
@@ -385,7 +387,6 @@ def apply_feedback(
             with torch.no_grad():
                 d_query = policy.encode_query(frames["task"])
                 d_raw = kvm.raw_context(frames[policy.config.context_key].to(device), d_query)
-                _, d_sigma2, _ = kvm.encode(d_raw)
                 d_rel = normalised_relevance(policy.pool.skill_relevance(d_query), active)
             if gap is not None:
                 demo_skill = gap["index"]
@@ -404,10 +405,10 @@ def apply_feedback(
                 kvm.add_safe(seen, skills, routine=False, demo=True)
                 safe_c.append(seen)
                 safe_s.append(skills.to(device))
-            unfamiliar = (d_sigma2 > tau) & ~kvm.known_safe(d_raw, culprit)
-            if bool(unfamiliar.any()):
-                kvm.add_fail(d_raw[unfamiliar], torch.full((int(unfamiliar.sum()),), culprit), hypothesis_id, permanent)
-                fail_c.append(d_raw[unfamiliar])
+            unknown = ~kvm.known_safe(d_raw, culprit)
+            if bool(unknown.any()):
+                kvm.add_fail(d_raw[unknown], torch.full((int(unknown.sum()),), culprit), hypothesis_id, permanent)
+                fail_c.append(d_raw[unknown])
         fails = torch.cat(fail_c)
         new_fail = (fails, torch.full((len(fails),), culprit, device=device))
         new_safe = (torch.cat(safe_c), torch.cat(safe_s)) if safe_c else (c_raw[:0], dominant[:0])

@@ -435,7 +435,9 @@ class KnowledgeValidityModule(nn.Module):
         """A fixed budget of gradient steps on the KVM (E_c, join, energy model, classifier).
 
         Each step mixes the fresh samples of this feedback (half of each side) with replay from the memories,
-        so what was safe stays safe; cross-skill and synthetic negatives are added as offline. With
+        so what was safe stays safe; cross-skill and synthetic negatives are added as offline. The recorded safe
+        frames a step replays and judges invalid join the hard safe memory, replayed at every later step: a
+        failure's few negatives would otherwise suppress the culprit wherever its safe experience resembles them. With
         `kvm.online_encoder="joint"` (the default) E_c learns from the contrastive and energy terms too, which moves
         the codes of the failure contexts away from the culprit's safe ones. With "reconstruction" it learns only its
         reconstruction here, so a feedback's few contexts (the failed ones are safe for the demonstrated skill and
@@ -453,18 +455,20 @@ class KnowledgeValidityModule(nn.Module):
         self.train()
         with torch.enable_grad(), torch.inference_mode(False):
             for _ in range(steps):
-                parts_c, parts_s, parts_r, parts_rec = [], [], [], []
+                parts_c, parts_s, parts_r, parts_rec, parts_hardens = [], [], [], [], []
                 if len(safe_new_c):
                     i = torch.randint(len(safe_new_c), (half,), device=safe_new_c.device)
                     parts_c.append(safe_new_c[i])
                     parts_s.append(safe_new_s[i])
                     parts_r.append(torch.zeros(half, dtype=torch.bool, device=safe_new_c.device))
                     parts_rec.append(torch.zeros_like(parts_r[-1]))  # met online
+                    parts_hardens.append(parts_rec[-1])
                 replay = half // 2 if len(safe_new_c) else half
-                for buffer, k, recorded in (
-                    (self.safe_offline, replay, True),
-                    (self.safe_online, replay, False),
-                    (self.safe_hard, cfg.hard_safe_replay, True),
+                # (buffer, rows, recorded frames?, may join the hard safe memory: recorded frames it does not hold)
+                for buffer, k, recorded, hardens in (
+                    (self.safe_offline, replay, True, True),
+                    (self.safe_online, replay, False, False),
+                    (self.safe_hard, cfg.hard_safe_replay, True, False),
                 ):
                     if len(buffer):
                         c, s, f = self._replay(buffer, k)
@@ -472,6 +476,7 @@ class KnowledgeValidityModule(nn.Module):
                         parts_s.append(s)
                         parts_r.append((f & ROUTINE) > 0)
                         parts_rec.append(torch.full_like(parts_r[-1], recorded))
+                        parts_hardens.append(torch.full_like(parts_r[-1], hardens))
                 if not parts_c:
                     break
                 safe_c, safe_s, routine = torch.cat(parts_c), torch.cat(parts_s), torch.cat(parts_r)
@@ -488,7 +493,7 @@ class KnowledgeValidityModule(nn.Module):
                 neg_c, neg_s = self.negatives_for(safe_c, safe_s, active, torch.cat(parts_rec))
                 fparts_c.append(neg_c)
                 fparts_s.append(neg_s)
-                loss, metrics, _ = self.loss_terms(
+                loss, metrics, e_safe = self.loss_terms(
                     safe_c,
                     safe_s,
                     routine,
@@ -496,6 +501,8 @@ class KnowledgeValidityModule(nn.Module):
                     torch.cat(fparts_s),
                     code_from_recon_only=cfg.online_encoder == "reconstruction",
                 )
+                hardens = torch.cat(parts_hardens)
+                self.keep_hard_safe(safe_c[hardens], safe_s[hardens], e_safe[hardens])
                 optimizer.zero_grad()
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(params, 10.0)

@@ -219,6 +219,36 @@ def test_safe_frames_still_judged_invalid_are_kept_and_replayed(make_policy, mak
     assert seen["routine"][-4:].all()
 
 
+@pytest.mark.parametrize("judged_invalid", [True, False])
+def test_a_feedback_update_keeps_the_safe_samples_it_judges_invalid(make_policy, judged_invalid: bool) -> None:
+    """The few negatives of one failure must not suppress the culprit in its own safe experience: the recorded safe
+    frames an online update replays and judges invalid join the hard safe memory, replayed at every later step
+    (what was met online stays out of it: the hard memory's frames count as recorded, for cross-skill pairs)."""
+    policy = two_skill_policy(make_policy)
+    kvm = policy.kvm
+    safe = torch.randn(8, kvm.encoder.raw_dim)
+    kvm.safe_offline.add(safe, skill=torch.tensor([0, 1] * 4), tag=torch.arange(8))
+    kvm.add_safe(torch.randn(4, kvm.encoder.raw_dim) + 50.0, torch.zeros(4).long(), routine=True)
+    seen: list[torch.Tensor] = []
+    loss_terms = kvm.loss_terms
+
+    def energies_of(safe_c, safe_s, routine, fail_c, fail_s, **kwargs):
+        loss, metrics, energy = loss_terms(safe_c, safe_s, routine, fail_c, fail_s, **kwargs)
+        seen.append(safe_c.detach().clone())
+        return loss, metrics, energy.new_full(energy.shape, 20.0 if judged_invalid else -20.0)
+
+    kvm.loss_terms = energies_of
+    fail = torch.randn(3, kvm.encoder.raw_dim)
+    kvm.train_online(1, policy.kvm_active_skills(), (safe[:0], torch.zeros(0).long()), (fail, torch.zeros(3).long()))
+    stored = kvm.safe_hard.data[kvm.safe_hard.filled()]
+    if judged_invalid:
+        recorded = seen[0][seen[0].abs().amax(1) < 25]
+        assert len(stored) == len(recorded) > 0 and torch.equal(stored, recorded)
+        assert len(recorded) < len(seen[0])  # the online rows were replayed too
+    else:
+        assert not len(stored)
+
+
 class _Meta:
     def __init__(self, root):
         self.root = root
