@@ -455,28 +455,29 @@ class KnowledgeValidityModule(nn.Module):
         self.train()
         with torch.enable_grad(), torch.inference_mode(False):
             for _ in range(steps):
-                parts_c, parts_s, parts_r, parts_rec, parts_hardens = [], [], [], [], []
+                parts_c, parts_s, parts_r, parts_rec = [], [], [], []
                 if len(safe_new_c):
                     i = torch.randint(len(safe_new_c), (half,), device=safe_new_c.device)
                     parts_c.append(safe_new_c[i])
                     parts_s.append(safe_new_s[i])
                     parts_r.append(torch.zeros(half, dtype=torch.bool, device=safe_new_c.device))
                     parts_rec.append(torch.zeros_like(parts_r[-1]))  # met online
-                    parts_hardens.append(parts_rec[-1])
                 replay = half // 2 if len(safe_new_c) else half
-                # (buffer, rows, recorded frames?, may join the hard safe memory: recorded frames it does not hold)
-                for buffer, k, recorded, hardens in (
-                    (self.safe_offline, replay, True, True),
-                    (self.safe_online, replay, False, False),
-                    (self.safe_hard, cfg.hard_safe_replay, True, False),
+                offline = slice(0, 0)  # the rows replayed from the recorded safe memory
+                for buffer, k, recorded in (
+                    (self.safe_offline, replay, True),
+                    (self.safe_online, replay, False),
+                    (self.safe_hard, cfg.hard_safe_replay, True),
                 ):
                     if len(buffer):
                         c, s, f = self._replay(buffer, k)
+                        if buffer is self.safe_offline:
+                            start = sum(len(p) for p in parts_c)
+                            offline = slice(start, start + len(c))
                         parts_c.append(c)
                         parts_s.append(s)
                         parts_r.append((f & ROUTINE) > 0)
                         parts_rec.append(torch.full_like(parts_r[-1], recorded))
-                        parts_hardens.append(torch.full_like(parts_r[-1], hardens))
                 if not parts_c:
                     break
                 safe_c, safe_s, routine = torch.cat(parts_c), torch.cat(parts_s), torch.cat(parts_r)
@@ -501,8 +502,7 @@ class KnowledgeValidityModule(nn.Module):
                     torch.cat(fparts_s),
                     code_from_recon_only=cfg.online_encoder == "reconstruction",
                 )
-                hardens = torch.cat(parts_hardens)
-                self.keep_hard_safe(safe_c[hardens], safe_s[hardens], e_safe[hardens])
+                self.keep_hard_safe(safe_c[offline], safe_s[offline], e_safe[offline])
                 optimizer.zero_grad()
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(params, 10.0)
