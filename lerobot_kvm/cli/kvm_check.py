@@ -13,6 +13,7 @@ from .table import results_table
 
 COLUMNS = (
     ("scenario", "id", "{}"),
+    ("seed", "seed", "{:d}"),
     ("cat", "category", "{}"),
     ("failed attempt", "failed_attempt", "{}"),
     ("shift step", "shift_step", "{:.0f}"),
@@ -43,25 +44,67 @@ LEGEND = (
 )
 
 
+SUMMARY_COLUMNS = (
+    ("scenario", "id", "{}"),
+    ("cat", "category", "{}"),
+    ("seeds passed", "seeds_passed", "{}"),
+    ("AUROC mean", "auroc_mean", "{:.3f}"),
+    ("AUROC min", "auroc_min", "{:.3f}"),
+    ("v prior min", "v_prior_min", "{:.3f}"),
+    ("v shifted max", "v_shifted_max", "{:.3f}"),
+    ("gate prior max", "gate_max", "{:.3f}"),
+)
+
+
+def summary_rows(summary: list[dict]) -> list[dict]:
+    """The per-scenario summary as `results_table` rows: a check fails when it fails at any seed."""
+
+    def pick(spread: dict | None, which: str) -> float | None:
+        return None if spread is None else spread[which]
+
+    return [
+        {
+            "id": s["id"],
+            "category": s["category"],
+            "seeds_passed": f"{s['seeds_passed']}/{s['seeds']}",
+            "auroc_mean": pick(s["auroc"], "mean"),
+            "auroc_min": pick(s["auroc"], "min"),
+            "v_prior_min": pick(s["v_prior_median"], "min"),
+            "v_shifted_max": pick(s["v_shifted_median"], "max"),
+            "gate_max": pick(s["gate_rate_prior"], "max"),
+            "passes": {name: n == s["seeds"] for name, n in s["checks_passed"].items()},
+            "passed": s["passed"],
+        }
+        for s in summary
+    ]
+
+
 def run(args: argparse.Namespace) -> int:
     from ..kvm.validity_check import check_validity_suite
 
+    seeds = tuple(int(s) for s in args.seeds.split(","))
     report = check_validity_suite(
         resolve_tasks(args.tasks),
+        seeds=seeds,
         episodes=args.episodes,
         held_out=args.held_out,
-        seed=args.seed,
         offline_steps=(args.offline_steps, args.new_skill_steps),
         online_encoder=args.online_encoder,
     )
     print(results_table(report["scenarios"], COLUMNS))
     print(LEGEND)
+    if len(seeds) > 1:
+        print()
+        print(results_table(summary_rows(report["summary"]), SUMMARY_COLUMNS))
+        print("over the seeds: v prior min = the lowest median, v shifted max = the highest; a check fails if it fails")
+        print("at any seed")
     if args.json:
         path = Path(args.json)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(report, indent=2) + "\n")
         print(f"wrote {path}")
-    print(f"{report['n_pass']}/{report['n_scenarios']} scenarios pass (seed {args.seed})")
+    per_seed = ", ".join(f"{n} at seed {s}" for n, s in zip(report["n_pass_per_seed"], seeds, strict=True))
+    print(f"{report['n_pass']}/{report['n_scenarios']} scenarios pass at every seed ({per_seed})")
     return 0
 
 
@@ -78,6 +121,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=KvmConfig.online_encoder,
         help="what E_c learns from the feedback (policy.kvm.online_encoder)",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seeds", default="0", help="comma-separated seeds; each scenario is checked at each of them")
     p.add_argument("--json", help="also write the full report to this JSON file")
     p.set_defaults(func=run)

@@ -251,16 +251,48 @@ def judge(row: dict[str, Any]) -> dict[str, bool]:
     }
 
 
-def check_validity_suite(scenario_ids: list[str], progress: bool = True, **kwargs: Any) -> dict[str, Any]:
+def check_validity_suite(
+    scenario_ids: list[str], seeds: tuple[int, ...] = (0,), progress: bool = True, **kwargs: Any
+) -> dict[str, Any]:
+    """Every scenario at every seed. One seed's pass or fail moves with the float rounding, so the summary
+    counts, per scenario, the seeds at which it passes; `n_pass` counts the scenarios that pass at all of them."""
     rows = []
-    with tqdm(scenario_ids, unit="scenario", disable=not progress) as bar:
-        for sid in bar:
-            bar.set_description(sid)
-            rows.append(check_validity(sid, **kwargs))
+    with tqdm(total=len(seeds) * len(scenario_ids), unit="check", disable=not progress) as bar:
+        for seed in seeds:
+            for sid in scenario_ids:
+                bar.set_description(f"{sid} (seed {seed})")
+                rows.append({"seed": seed, **check_validity(sid, seed=seed, **kwargs)})
+                bar.update()
+    summary = [summarise([r for r in rows if r["id"] == sid]) for sid in scenario_ids]
     return {
         "thresholds": {"v_low": V_LOW, "v_high": V_HIGH, "min_auroc": MIN_AUROC, "max_gate_rate": MAX_GATE_RATE},
         "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in kwargs.items() if k != "workdir"},
-        "n_pass": sum(r["passed"] for r in rows),
-        "n_scenarios": len(rows),
+        "seeds": list(seeds),
+        "n_pass": sum(s["passed"] for s in summary),
+        "n_pass_per_seed": [sum(r["passed"] for r in rows if r["seed"] == seed) for seed in seeds],
+        "n_scenarios": len(scenario_ids),
+        "summary": summary,
         "scenarios": rows,
+    }
+
+
+def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """One scenario over its seeds: how many pass each check, and the spread of the measures."""
+
+    def spread(key: str) -> dict[str, float] | None:
+        values = [r[key] for r in rows if r[key] is not None]
+        if not values:
+            return None
+        return {"mean": sum(values) / len(values), "min": min(values), "max": max(values)}
+
+    checks = rows[0]["passes"]
+    return {
+        "id": rows[0]["id"],
+        "category": rows[0]["category"],
+        "seeds": len(rows),
+        "seeds_passed": sum(r["passed"] for r in rows),
+        "checks_passed": {name: sum(bool(r["passes"][name]) for r in rows) for name in checks},
+        **{key: spread(key) for key in ("auroc", "v_prior_median", "v_shifted_median", "gate_rate_prior")},
+        "failure_steps": spread("failure_steps"),
+        "passed": all(r["passed"] for r in rows),
     }

@@ -1,0 +1,52 @@
+"""The multi-seed summary of `lerobot-kvm kvm-check`: a scenario passes only when it passes at every seed."""
+
+import pytest
+
+from lerobot_kvm.cli.kvm_check import summary_rows
+from lerobot_kvm.kvm.validity_check import judge, summarise
+
+
+def _row(seed: int, auroc: float | None, v_prior: float, v_shifted: float | None, gate: float) -> dict:
+    row = {
+        "id": "drawer",
+        "category": "B",
+        "seed": seed,
+        "auroc": auroc,
+        "v_prior_median": v_prior,
+        "v_shifted_median": v_shifted,
+        "gate_rate_prior": gate,
+        "failure_steps": 10 * (seed + 1),
+    }
+    row["passes"] = judge(row)
+    row["passed"] = all(row["passes"].values())
+    return row
+
+
+def test_a_scenario_passes_only_at_every_seed_and_the_spread_spans_the_seeds() -> None:
+    rows = [_row(0, 0.99, 1.0, 0.01, 0.02), _row(1, 0.90, 0.95, 0.05, 0.04), _row(2, 0.97, 0.99, 0.2, 0.01)]
+    assert [r["passed"] for r in rows] == [True, False, False]
+    summary = summarise(rows)
+    assert (summary["seeds"], summary["seeds_passed"], summary["passed"]) == (3, 1, False)
+    assert summary["checks_passed"] == {
+        "suppressed_in_shifted": 2,
+        "kept_in_prior": 3,
+        "auroc": 2,
+        "gate_closed_on_routine": 3,
+    }
+    assert summary["auroc"] == {"mean": pytest.approx(2.86 / 3), "min": 0.90, "max": 0.99}
+    assert summary["failure_steps"] == {"mean": 20.0, "min": 10, "max": 30}
+    (table_row,) = summary_rows([summary])
+    assert table_row["seeds_passed"] == "1/3" and table_row["v_shifted_max"] == 0.2
+    assert table_row["passes"] == {
+        "suppressed_in_shifted": False,
+        "kept_in_prior": True,
+        "auroc": False,
+        "gate_closed_on_routine": True,
+    }
+    assert summarise(rows[:1])["passed"]
+
+
+def test_a_seed_without_shifted_steps_leaves_the_spread_to_the_others() -> None:
+    summary = summarise([_row(0, None, 1.0, None, 0.0), _row(1, 0.96, 1.0, 0.0, 0.0)])
+    assert summary["auroc"] == {"mean": 0.96, "min": 0.96, "max": 0.96}
+    assert summary["seeds_passed"] == 1 and not summary["passed"]
