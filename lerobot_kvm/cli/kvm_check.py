@@ -90,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
         held_out=args.held_out,
         offline_steps=(args.offline_steps, args.new_skill_steps),
         online_encoder=args.online_encoder,
+        feedback_steps=args.feedback_steps,
     )
     print(results_table(report["scenarios"], COLUMNS))
     print(LEGEND)
@@ -120,6 +121,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=ONLINE_ENCODERS,
         default=KvmConfig.online_encoder,
         help="what E_c learns from the feedback (policy.kvm.online_encoder)",
+    )
+    p.add_argument(
+        "--feedback-steps",
+        type=int,
+        default=KvmConfig.feedback_steps,
+        help="gradient steps of the one feedback (policy.kvm.feedback_steps; the benchmark gives every method 100)",
     )
     p.add_argument("--seeds", default="0", help="comma-separated seeds; each scenario is checked at each of them")
     p.add_argument("--json", help="also write the full report to this JSON file")

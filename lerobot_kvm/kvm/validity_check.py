@@ -138,9 +138,11 @@ def check_validity(
     seed: int = 0,
     offline_steps: tuple[int, int] = (300, 200),
     online_encoder: str = KvmConfig.online_encoder,
+    feedback_steps: int = KvmConfig.feedback_steps,
     workdir: str | Path | None = None,
 ) -> dict[str, Any]:
-    """One row of the validity report for `scenario_id` (see the module docstring for the protocol)."""
+    """One row of the validity report for `scenario_id` (see the module docstring for the protocol);
+    `feedback_steps` is the feedback's gradient budget."""
     info = SCENARIOS[scenario_id].info
     torch.manual_seed(seed)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
@@ -179,7 +181,9 @@ def check_validity(
         env, info.safe_skill, pre, seed=base + 1, policy_skill=info.safe_skill
     )
     env.close()
-    report = policy.kvm_feedback(failed_outcome, trace_from_demonstration(failed), demonstration=corrective)
+    report = policy.kvm_feedback(
+        failed_outcome, trace_from_demonstration(failed), demonstration=corrective, gradient_steps=feedback_steps
+    )
     twins = _rollouts(scenario_id, "prior", info.prior_skill, pre, [base]) + _rollouts(
         scenario_id, "prior", info.safe_skill, pre, [base + 1]
     )
