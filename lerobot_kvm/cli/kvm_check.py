@@ -79,10 +79,17 @@ def summary_rows(summary: list[dict]) -> list[dict]:
     ]
 
 
+def seed_list(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(s) for s in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"seeds must be comma-separated integers, got {text!r}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     from ..kvm.validity_check import check_validity_suite
 
-    seeds = tuple(int(s) for s in args.seeds.split(","))
+    seeds = args.seeds
     report = check_validity_suite(
         resolve_tasks(args.tasks),
         seeds=seeds,
@@ -128,6 +135,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=KvmConfig.feedback_steps,
         help="gradient steps of the one feedback (policy.kvm.feedback_steps; the benchmark gives every method 100)",
     )
-    p.add_argument("--seeds", default="0", help="comma-separated seeds; each scenario is checked at each of them")
+    p.add_argument(
+        "--seeds", type=seed_list, default=(0,), help="comma-separated seeds; each scenario is checked at each of them"
+    )
     p.add_argument("--json", help="also write the full report to this JSON file")
     p.set_defaults(func=run)

@@ -1,8 +1,10 @@
 """The multi-seed summary of `lerobot-kvm kvm-check`: a scenario passes only when it passes at every seed."""
 
+import argparse
+
 import pytest
 
-from lerobot_kvm.cli.kvm_check import summary_rows
+from lerobot_kvm.cli.kvm_check import seed_list, summary_rows
 from lerobot_kvm.kvm.validity_check import judge, summarise
 
 
@@ -50,3 +52,9 @@ def test_a_seed_without_shifted_steps_leaves_the_spread_to_the_others() -> None:
     summary = summarise([_row(0, None, 1.0, None, 0.0), _row(1, 0.96, 1.0, 0.0, 0.0)])
     assert summary["auroc"] == {"mean": 0.96, "min": 0.96, "max": 0.96}
     assert summary["seeds_passed"] == 1 and not summary["passed"]
+
+
+def test_seeds_are_read_as_a_comma_separated_list() -> None:
+    assert seed_list("0,1,2") == (0, 1, 2)
+    with pytest.raises(argparse.ArgumentTypeError, match="comma-separated integers"):
+        seed_list("0,x")
