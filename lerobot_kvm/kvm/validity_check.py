@@ -296,7 +296,9 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "seeds": len(rows),
         "seeds_passed": sum(r["passed"] for r in rows),
         "checks_passed": {name: sum(bool(r["passes"][name]) for r in rows) for name in checks},
-        **{key: spread(key) for key in ("auroc", "v_prior_median", "v_shifted_median", "gate_rate_prior")},
-        "failure_steps": spread("failure_steps"),
+        **{
+            key: spread(key)
+            for key in ("auroc", "v_prior_median", "v_shifted_median", "gate_rate_prior", "failure_steps")
+        },
         "passed": all(r["passed"] for r in rows),
     }
