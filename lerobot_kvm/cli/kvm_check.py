@@ -18,6 +18,8 @@ COLUMNS = (
     ("failed attempt", "failed_attempt", "{}"),
     ("shift step", "shift_step", "{:.0f}"),
     ("fail steps", "failure_steps", "{:d}"),
+    ("label rec", "label_recall", "{:.2f}"),
+    ("label prec", "label_precision", "{:.2f}"),
     ("v prior", "v_prior_median", "{:.3f}"),
     ("v>0.9", "v_prior_above_0.9", "{:.2f}"),
     ("v shifted", "v_shifted_median", "{:.3f}"),
@@ -25,6 +27,7 @@ COLUMNS = (
     ("AUROC", "auroc", "{:.3f}"),
     ("AUROC prior", "auroc_prior_skill", "{:.3f}"),
     ("NN ref", "neighbour_auroc", "{:.3f}"),
+    ("NN code", "neighbour_auroc_code", "{:.3f}"),
     ("own steps", "own_shifted_steps", "{:d}"),
     ("AUROC own", "auroc_own_steps", "{:.3f}"),
     ("NN own", "neighbour_auroc_own_steps", "{:.3f}"),
@@ -38,8 +41,10 @@ LEGEND = (
     "AUROC of 1 - v: prior skill in the shifted context vs. prior skill in the prior context and safe skill in\n"
     "the shifted context; AUROC prior: the prior skill's pairs only; NN ref: the same pairs scored by nearest\n"
     "neighbours in the sensed context from the same experience, the failed attempt and the demonstration cut at\n"
-    "their shift steps (which the KVM is not told); own: the same two over the prior skill's own shifted steps\n"
-    "only; fail steps = contexts the feedback learned as hazardous;\n"
+    "their shift steps (which the KVM is not told); NN code: the same on E_c's codes mu_c after the feedback;\n"
+    "own: the same over the prior skill's own shifted steps only; fail steps = contexts the feedback learned as\n"
+    "hazardous; label rec / prec: the share of the failed and the corrective attempts' shifted steps among them /\n"
+    "of them among the shifted steps;\n"
     "gate = share of steps on which the smart gate opens"
 )
 

@@ -284,6 +284,11 @@ def _stack_used(trace: KvmTrace, n_skills: int) -> tuple[Tensor, Tensor, Tensor]
     return v, w, inter
 
 
+def _steps(mask: Tensor) -> list[int]:
+    """The indices of a per-step mask's True steps, for the feedback's report."""
+    return torch.nonzero(mask).flatten().tolist()
+
+
 @torch.no_grad()
 def _similar(kvm: Any, mu: Tensor, hypothesis_id: int) -> Tensor:
     """[B] bool: context codes similar to a hypothesis's contexts (its prototype and negatives)."""
@@ -379,6 +384,7 @@ def apply_feedback(
         safe_s: list[Tensor] = []
         demo_skill = None
         gap = None
+        demo_negatives: list[int] = []
         if frames is not None:
             named = skill_by_name(policy, demonstration.get("skill"))
             if cfg.gap_on_failure and steps and named is None:  # a demonstrated skill the pool has is no gap
@@ -406,6 +412,7 @@ def apply_feedback(
                 safe_c.append(seen)
                 safe_s.append(skills.to(device))
             unknown = ~kvm.known_safe(d_raw, culprit)
+            demo_negatives = _steps(unknown)
             if bool(unknown.any()):
                 kvm.add_fail(d_raw[unknown], torch.full((int(unknown.sum()),), culprit), hypothesis_id, permanent)
                 fail_c.append(d_raw[unknown])
@@ -421,6 +428,8 @@ def apply_feedback(
             attribution={k: v for k, v in attribution.items() if k != "culprit"},
             hypothesis=kvm.hypotheses.info(hypothesis_id),
             negatives_added=len(fails),
+            failure_context_steps=_steps(context),
+            demo_negative_steps=demo_negatives,
             positives_added=len(new_safe[0]),
             demo_skill=demo_skill,
             suppressed_at_failure=suppressed,

@@ -26,11 +26,18 @@ corrective demonstration from their shift steps on), scored by nearest neighbour
 all the shifted steps and over the prior skill's own (the safe skill's shifted steps also differ from the prior
 context by the safe skill's own motion). It tells a scenario whose context carries the shift from one whose
 context barely does. It is a reference, not a bound: it is told the shift steps, which the KVM must find itself,
-and it does not read the instruction.
+and it does not read the instruction. The same reference on E_c's codes mu_c after the feedback (what the energy
+model reads) tells a code that carries the shift from one that loses it.
+
+How well the feedback found the shifted context: of the failed attempt's and the corrective demonstration's shifted
+steps, the share it learned as hazardous for the culprit (recall), and of the steps it learned so, the share that
+are shifted (precision).
 """
 
 import tempfile
+from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +68,7 @@ MAX_GATE_RATE = 0.06
 DIVERGENCE = 1e-3  # normalised context units: the shifted context departs from the prior variant's
 CONTEXT = "observation.context"
 NEIGHBOURS = 3
+Embed = Callable[[Tensor, list[str]], Tensor]
 
 
 def _small_policy(root: Path, repo_id: str, skill_name: str, online_encoder: str) -> Any:
@@ -187,7 +195,13 @@ def check_validity(
     twins = _rollouts(scenario_id, "prior", info.prior_skill, pre, [base]) + _rollouts(
         scenario_id, "prior", info.safe_skill, pre, [base + 1]
     )
-    met = _after([failed, corrective], [shift_step(t, d) for t, d in zip(twins, (failed, corrective), strict=True)])
+    met_from = [shift_step(t, d) for t, d in zip(twins, (failed, corrective), strict=True)]
+    met = _after([failed, corrective], met_from)
+    recall, precision = labelling(
+        [report.get("failure_context_steps", []), report.get("demo_negative_steps", [])],
+        met_from,
+        [len(failed["task"]), len(corrective["task"])],
+    )
 
     seeds = [base + 100 + i for i in range(held_out)]
     prior_prior = _rollouts(scenario_id, "prior", info.prior_skill, pre, seeds)
@@ -202,7 +216,10 @@ def check_validity(
     v_prior = context_validity(policy, prior_prior, 0)
     v_shifted = context_validity(policy, shifted, 0) if shifted else torch.empty(0)
     n_own = sum(len(d["task"]) for d in own)  # the first rows of v_shifted
-    risk = _neighbour_risks(data[CONTEXT][is_prior], met, shifted, prior_prior)
+    prior_tasks = [t for t, p in zip(data["task"], is_prior.tolist(), strict=True) if p]
+    offline_prior = {CONTEXT: data[CONTEXT][is_prior], "task": prior_tasks}
+    risk = _neighbour_risks(offline_prior, met, shifted, prior_prior)
+    risk_code = _neighbour_risks(offline_prior, met, shifted, prior_prior, embed=partial(_codes, policy))
     v_safe = context_validity(policy, shifted, 1) if shifted else torch.empty(0)
     row: dict[str, Any] = {
         "id": scenario_id,
@@ -211,6 +228,8 @@ def check_validity(
         "corrective_demo": corrective_outcome,
         "culprit": report.get("culprit"),
         "failure_steps": report.get("negatives_added"),  # contexts the feedback learned as hazardous for the culprit
+        "label_recall": recall,
+        "label_precision": precision,
         "shift_step": float(torch.tensor(start_prior, dtype=torch.float32).mean()),
         "v_prior_median": float(v_prior.median()),
         "v_prior_above_0.9": float((v_prior > V_HIGH).float().mean()),
@@ -219,6 +238,7 @@ def check_validity(
         "auroc": auroc(1 - v_shifted, torch.cat([1 - v_prior, 1 - v_safe])) if len(v_shifted) else None,
         "auroc_prior_skill": auroc(1 - v_shifted, 1 - v_prior) if len(v_shifted) else None,
         "neighbour_auroc": auroc(*risk) if risk else None,
+        "neighbour_auroc_code": auroc(*risk_code) if risk_code else None,
         "own_shifted_steps": n_own,
         "auroc_own_steps": auroc(1 - v_shifted[:n_own], 1 - v_prior) if n_own else None,
         "neighbour_auroc_own_steps": auroc(risk[0][:n_own], risk[1]) if risk and n_own else None,
@@ -231,17 +251,39 @@ def check_validity(
 
 
 def _neighbour_risks(
-    safe: Tensor, met: list[dict], shifted: list[dict], prior: list[dict]
+    safe: dict, met: list[dict], shifted: list[dict], prior: list[dict], embed: Embed | None = None
 ) -> tuple[Tensor, Tensor] | None:
     """`neighbour_risk` of every shifted and every prior-variant step, in order (None when the feedback met no
-    shifted context or there is none to score)."""
+    shifted context or there is none to score). `embed(contexts, tasks)` maps the sensed contexts first (E_c's
+    code, `_codes`); without it they are compared as sensed."""
     if not met or not shifted:
         return None
-    hazardous = torch.cat([d[CONTEXT] for d in met])
-    shifted_risk, prior_risk = (
-        neighbour_risk(torch.cat([d[CONTEXT] for d in demos]), safe, hazardous) for demos in (shifted, prior)
-    )
+
+    def features(demos: list[dict]) -> Tensor:
+        contexts = torch.cat([d[CONTEXT] for d in demos])
+        return contexts if embed is None else embed(contexts, [t for d in demos for t in d["task"]])
+
+    hazardous = features(met)
+    reference = features([safe])
+    shifted_risk, prior_risk = (neighbour_risk(features(demos), reference, hazardous) for demos in (shifted, prior))
     return shifted_risk, prior_risk
+
+
+@torch.no_grad()
+def _codes(policy: Any, contexts: Tensor, tasks: list[str]) -> Tensor:
+    """mu_c of normalized sensed contexts under their instructions: where the energy model reads them."""
+    kvm = policy.kvm
+    return kvm.encode(kvm.raw_context(contexts, policy.encode_query(tasks)))[0]
+
+
+def labelling(labelled: list[list[int]], starts: list[int], lengths: list[int]) -> tuple[float | None, float | None]:
+    """(recall, precision) of the steps a feedback labelled hazardous for the culprit, per demonstration (the failed
+    attempt, the corrective one), against their shifted steps (from each start on): how much of the shifted
+    context the feedback found, and how much of what it blamed was shifted (None without any to count)."""
+    hits = sum(sum(step >= start for step in steps) for steps, start in zip(labelled, starts, strict=True))
+    shifted = sum(max(n - start, 0) for n, start in zip(lengths, starts, strict=True))
+    blamed = sum(len(steps) for steps in labelled)
+    return (hits / shifted if shifted else None), (hits / blamed if blamed else None)
 
 
 def judge(row: dict[str, Any]) -> dict[str, bool]:
@@ -284,7 +326,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """One scenario over its seeds: how many pass each check, and the spread of the measures."""
 
     def spread(key: str) -> dict[str, float] | None:
-        values = [r[key] for r in rows if r[key] is not None]
+        values = [r[key] for r in rows if r.get(key) is not None]
         if not values:
             return None
         return {"mean": sum(values) / len(values), "min": min(values), "max": max(values)}
@@ -298,7 +340,17 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "checks_passed": {name: sum(bool(r["passes"][name]) for r in rows) for name in checks},
         **{
             key: spread(key)
-            for key in ("auroc", "v_prior_median", "v_shifted_median", "gate_rate_prior", "failure_steps")
+            for key in (
+                "auroc",
+                "v_prior_median",
+                "v_shifted_median",
+                "gate_rate_prior",
+                "failure_steps",
+                "label_recall",
+                "label_precision",
+                "neighbour_auroc",
+                "neighbour_auroc_code",
+            )
         },
         "passed": all(r["passed"] for r in rows),
     }

@@ -141,6 +141,9 @@ def test_failure_feedback_forms_a_hypothesis_with_provisional_negatives(make_pol
     h = report["hypothesis"]["id"]
     tagged = (policy.kvm.fail_online.tag == h) & (policy.kvm.fail_online.stamp >= 0)
     assert int(tagged.sum()) == report["negatives_added"] > 0
+    # without a demonstration, every negative is a step of the attempt, and the report says which
+    assert report["demo_negative_steps"] == [] and len(report["failure_context_steps"]) == report["negatives_added"]
+    assert set(report["failure_context_steps"]) <= set(range(len(trace)))
     assert int((policy.kvm.fail_online.flags[tagged] & PERMANENT).sum()) == 0  # provisional
     assert (policy.kvm.fail_online.skill[tagged] == 0).all()
     # a second failure in the same context adds evidence to the same hypothesis

@@ -1,11 +1,12 @@
-"""The multi-seed summary of `lerobot-kvm kvm-check`: a scenario passes only when it passes at every seed."""
+"""The multi-seed summary of `lerobot-kvm kvm-check` (a scenario passes only when it passes at every seed) and its
+measure of the feedback's labelling."""
 
 import argparse
 
 import pytest
 
 from lerobot_kvm.cli.kvm_check import seed_list, summary_rows
-from lerobot_kvm.kvm.validity_check import judge, summarise
+from lerobot_kvm.kvm.validity_check import judge, labelling, summarise
 
 
 def _row(seed: int, auroc: float | None, v_prior: float, v_shifted: float | None, gate: float) -> dict:
@@ -58,3 +59,12 @@ def test_seeds_are_read_as_a_comma_separated_list() -> None:
     assert seed_list("0,1,2") == (0, 1, 2)
     with pytest.raises(argparse.ArgumentTypeError, match="comma-separated integers"):
         seed_list("0,x")
+
+
+def test_labelling_counts_the_blamed_steps_against_each_attempts_shifted_steps() -> None:
+    # failed attempt: 10 steps, shifted from 6 (4 steps), blamed 5..9; demonstration: 8 steps, shifted from 5
+    # (3 steps), blamed 6 and 7: 4 + 2 of the 7 shifted steps found, 6 of the 7 blamed steps shifted
+    recall, precision = labelling([[5, 6, 7, 8, 9], [6, 7]], [6, 5], [10, 8])
+    assert recall == pytest.approx(6 / 7) and precision == pytest.approx(6 / 7)
+    assert labelling([[], []], [6, 5], [10, 8]) == (0.0, None)  # nothing blamed
+    assert labelling([[1], []], [10, 8], [10, 8]) == (None, 0.0)  # no shifted step to find
