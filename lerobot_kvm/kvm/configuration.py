@@ -98,9 +98,13 @@ class KvmConfig:
     feedback_batch: int = 128
     feedback_lr: float = 1e-3
     fail_context_steps: int = 10  # the last K steps before a failure are part of the failure context ...
-    # ... unless they lie inside the culprit's safe experience (see `known_safe`): the quantile of the safe
+    # ... unless they lie inside the culprit's safe experience (`SafeExperience.known`): the quantile of the safe
     # memory's cross-episode nearest-neighbour distances below which a context counts as already known safe
     known_safe_quantile: float = 0.95
+    # The steps from which an attempt stays further than this multiple of the median of those distances from the
+    # culprit's safe experience until its end are failure context too (`SafeExperience.departed`), and so are such
+    # steps of a corrective demonstration (hazardous for the culprit). None: only the rules above.
+    departure_radius: float | None = 2.0
 
     # ------------------------------------------------------------------ attribution (App. D)
     hypothesis_capacity: int = 64
@@ -226,6 +230,8 @@ class KvmConfig:
                 raise ValueError(f"`kvm.{name}` must be in [0, 1], got {value!r}")
         if self.force_validity is not None and not 0.0 <= self.force_validity <= 1.0:
             raise ValueError(f"`kvm.force_validity` must be None or in [0, 1], got {self.force_validity!r}")
+        if self.departure_radius is not None and not self.departure_radius > 0:
+            raise ValueError(f"`kvm.departure_radius` must be None or > 0, got {self.departure_radius!r}")
         if self.energy_floor is not None and not 0 < self.energy_floor < self.energy_max:
             raise ValueError(f"`kvm.energy_floor` must be None or in (0, energy_max), got {self.energy_floor!r}")
         if self.energy_margin >= self.energy_max:

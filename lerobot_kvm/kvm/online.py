@@ -5,21 +5,22 @@ after an attempt:
 
 * always: the attempt is one interaction of the knowledge-base metabolism (eqs. 7-8; pruning check) for the
   skill the CL core proposed (the culprit rule below, applied whatever the outcome).
-* failure: the culprit (minimal counterfactual: the skill that carried the largest share of the fused prompt
-  over the last K steps) and the failure context (steps outside the safe experience, sigma_c^2 > tau, plus the
-  last K steps) form a low-confidence hypothesis, or add evidence to a matching one. The failure context paired
-  with the culprit becomes provisional h_fail negatives; a corrective demonstration gives positives for the
-  skill that demonstrates the safe strategy (its name in `demonstration["skill"]`, else the most relevant
-  alternative), in its own contexts and in the failure context, and, where its contexts lie outside the
-  culprit's safe experience (`known_safe`), more negatives for the culprit: the demonstration ran where the
-  culprit failed, and once the shift shows, its contexts are what the culprit would meet there. Then a fixed
-  budget of gradient steps updates the KVM, replaying the safe memory so that what was safe stays safe (the safe
-  samples the update judges invalid are replayed at every step after, `kvm.hard_safe_replay`). This first update
-  is what lowers v(culprit, failure context) already on the next attempt; the hypothesis governs confirmation.
-  With a demonstration, the knowledge gap is tested at once (`kvm.gap_on_failure`): if every alternative to
-  the culprit is weak in the failure context, suppression alone would leave no strategy, so a new *gated* skill
-  that corrects the culprit (`fusion.correction_validity`) is begun and seeded from the demonstration: KVM
-  positives from the demonstrated and the failed contexts, then the feedback's gradient budget as focused steps
+* failure: the culprit (minimal counterfactual: the skill that carried the largest share of the fused prompt over
+  the last K steps) and the failure context (steps outside the safe experience, sigma_c^2 > tau, plus the last K
+  steps, and the steps from which the attempt left the culprit's safe experience for good,
+  `SafeExperience.departed`) form a low-confidence hypothesis, or add evidence to a matching one. The failure
+  context paired with the culprit becomes provisional h_fail negatives; a corrective demonstration gives positives
+  for the skill that demonstrates the safe strategy (its name in `demonstration["skill"]`, else the most relevant
+  alternative), in its own contexts and in the failure context, and, where its contexts lie outside the culprit's
+  safe experience or leave it for good (`SafeExperience`), more negatives for the culprit: the demonstration ran
+  where the culprit failed, and once the shift shows, its contexts are what the culprit would meet there. Then a
+  fixed budget of gradient steps updates the KVM, replaying the safe memory so that what was safe stays safe (the
+  safe samples the update judges invalid are replayed at every step after, `kvm.hard_safe_replay`). This first
+  update is what lowers v(culprit, failure context) already on the next attempt; the hypothesis governs
+  confirmation. With a demonstration, the knowledge gap is tested at once (`kvm.gap_on_failure`): if every
+  alternative to the culprit is weak in the failure context, suppression alone would leave no strategy, so a new
+  *gated* skill that corrects the culprit (`fusion.correction_validity`) is begun and seeded from the demonstration:
+  KVM positives from the demonstrated and the failed contexts, then the feedback's gradient budget as focused steps
   on its parameters only. Later failures of the same hypothesis, or blamed on it in its task, refine it.
 * success: safe samples for the dominant skill (routine ones, without intervention, also feed the gate window
   and E_c's reconstruction). Interventions (a candidate suppressed, v_i < tau_v) in a context similar to an open
@@ -45,6 +46,7 @@ from .attribution import (
     knowledge_gap,
     normalised_relevance,
 )
+from .experience import SafeExperience
 from .fusion import fuse_weights, plain_scale
 from .telemetry import KvmTrace
 
@@ -284,6 +286,13 @@ def _stack_used(trace: KvmTrace, n_skills: int) -> tuple[Tensor, Tensor, Tensor]
     return v, w, inter
 
 
+def _departed(experience: SafeExperience, c_raw: Tensor, radius: float | None) -> Tensor:
+    """`SafeExperience.departed`, or no step where `kvm.departure_radius` is None."""
+    if radius is None:
+        return torch.zeros(len(c_raw), dtype=torch.bool, device=c_raw.device)
+    return experience.departed(c_raw, radius)
+
+
 def _steps(mask: Tensor) -> list[int]:
     """The indices of a per-step mask's True steps, for the feedback's report."""
     return torch.nonzero(mask).flatten().tolist()
@@ -365,7 +374,9 @@ def apply_feedback(
         culprit = proposed
         context = sigma2 > tau
         context[-k:] = True
-        context &= ~kvm.known_safe(c_raw, culprit)
+        experience = kvm.safe_experience(culprit)
+        context &= ~experience.known(c_raw, cfg.known_safe_quantile)
+        context |= _departed(experience, c_raw, cfg.departure_radius)
         hypothesis_id = None
         for h in kvm.hypotheses.ids(skill=culprit):
             if bool(_similar(kvm, mu[context], h).any()):
@@ -411,7 +422,9 @@ def apply_feedback(
                 kvm.add_safe(seen, skills, routine=False, demo=True)
                 safe_c.append(seen)
                 safe_s.append(skills.to(device))
-            unknown = ~kvm.known_safe(d_raw, culprit)
+            unknown = ~experience.known(d_raw, cfg.known_safe_quantile) | _departed(
+                experience, d_raw, cfg.departure_radius
+            )
             demo_negatives = _steps(unknown)
             if bool(unknown.any()):
                 kvm.add_fail(d_raw[unknown], torch.full((int(unknown.sum()),), culprit), hypothesis_id, permanent)

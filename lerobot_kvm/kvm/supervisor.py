@@ -19,6 +19,7 @@ from .attribution import HypothesisTable
 from .configuration import KvmConfig
 from .context_encoder import ContextEncoder
 from .energy import EnergyModel, JointFeature, RiskClassifier, validity
+from .experience import SafeExperience
 from .fusion import correction_validity, fuse_weights
 from .gate import SmartGate
 from .losses import bce_loss, contrastive_loss, energy_loss, total_loss
@@ -378,7 +379,7 @@ class KnowledgeValidityModule(nn.Module):
         Safe = frames of successful episodes (of the skill that produced them); hazardous = frames of recorded
         failure episodes (never a benchmark-shifted variant: those are not `usable`), the same contexts paired
         with other skills, and synthetic off-manifold perturbations. `episodes` [B] (dataset episode indices)
-        tag the safe memory, which is what `known_safe` measures the spread of the safe experience with.
+        tag the safe memory, which is what `safe_experience` measures the spread of the safe experience with.
         """
         n = self.config.replay_size
         safe = usable & (outcome == 0)
@@ -514,26 +515,18 @@ class KnowledgeValidityModule(nn.Module):
 
     # ----------------------------------------------------------------- helpers for the online API
     @torch.no_grad()
-    def known_safe(self, c_raw: Tensor, skill: int) -> Tensor:
-        """[N] bool: contexts inside `skill`'s safe experience, which a failure of that skill cannot be blamed on.
-
-        A context is inside when it lies closer to one of the skill's safe samples than the safe samples of one
-        recorded episode typically lie to those of another (the `known_safe_quantile` of their cross-episode
-        nearest-neighbour distances): the ordinary spread of the safe experience. Before a shift shows, a failed
-        attempt senses exactly what a safe one does; labelling those steps hazardous would contradict the safe
-        memory and suppress the skill where it is still valid. Without two tagged episodes nothing is known.
-        """
+    def safe_experience(self, skill: int) -> SafeExperience:
+        """`skill`'s safe memory (recorded and met online) with the spread of its recorded episodes (`episodes` of
+        `offline_step` tag them)."""
         buffers = [(b, b.filled()) for b in (self.safe_offline, self.safe_online)]
-        ref = torch.cat([b.data[i][b.skill[i] == skill] for b, i in buffers])
+        samples = torch.cat([b.data[i][b.skill[i] == skill] for b, i in buffers])
         tags = torch.cat([b.tag[i][b.skill[i] == skill] for b, i in buffers])
         tagged = tags >= 0
-        known = torch.zeros(len(c_raw), dtype=torch.bool, device=c_raw.device)
-        if len(torch.unique(tags[tagged])) < 2 or not len(c_raw):
-            return known
-        cross = torch.cdist(ref[tagged], ref[tagged])
+        if len(torch.unique(tags[tagged])) < 2:
+            return SafeExperience(samples, samples.new_zeros(0))
+        cross = torch.cdist(samples[tagged], samples[tagged])
         cross[tags[tagged].unsqueeze(0) == tags[tagged].unsqueeze(1)] = float("inf")
-        radius = torch.quantile(cross.min(1).values, self.config.known_safe_quantile)
-        return torch.cdist(c_raw.to(ref), ref).min(1).values <= radius
+        return SafeExperience(samples, cross.min(1).values)
 
     def add_safe(self, c_raw: Tensor, skills: Tensor, routine: bool, demo: bool = False) -> None:
         flags = (ROUTINE if routine else 0) | (DEMO if demo else 0)

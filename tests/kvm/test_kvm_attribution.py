@@ -329,19 +329,26 @@ def test_chronic_failures_prune_a_skill_which_stays_recoverable(make_policy, att
     assert bool(policy.kvm_active_skills()[pruned[0]])
 
 
-def test_known_safe_uses_the_cross_episode_spread_of_the_safe_memory(make_policy) -> None:
+def test_the_safe_experience_is_measured_in_the_spread_of_its_recorded_episodes(make_policy) -> None:
     kvm = make_policy().kvm
     dim = kvm.encoder.raw_dim
     c = torch.zeros(4, dim)
-    assert not kvm.known_safe(c, 0).any()  # empty memory: nothing is known
+    assert not kvm.safe_experience(0).known(c, 0.95).any()  # empty memory: nothing is known ...
+    assert not kvm.safe_experience(0).departed(c, 2.0).any()  # ... and nothing departs from it
     gen = torch.Generator().manual_seed(0)
-    for episode in range(4):  # four episodes of the same routine: each about 0.1 away from the others
+    for episode in range(4):  # four episodes of the same routine: each about 0.1 * sqrt(dim) from the next
         rows = torch.full((3, dim), 0.1 * episode) + 0.001 * torch.randn(3, dim, generator=gen)
         kvm.safe_offline.add(rows, skill=0, tag=episode)
+    experience = kvm.safe_experience(0)
     near = torch.full((1, dim), 0.15)  # between two episodes
     far = torch.full((1, dim), 3.0)
-    assert kvm.known_safe(torch.cat([near, far]), 0).tolist() == [True, False]
-    assert not kvm.known_safe(near, 1).any()  # another skill's safe experience says nothing about skill 1
+    assert experience.known(torch.cat([near, far]), 0.95).tolist() == [True, False]
+    assert not kvm.safe_experience(1).known(near, 0.95).any()  # another skill's experience says nothing of skill 1
+    # an attempt that leaves the experience, comes back, then leaves for good: only the last departure counts
+    steps = torch.cat([near, far, near, near, 0.5 + near, far])  # 0.65 per dimension: 3.5 spreads from the nearest
+    assert experience.departed(steps, 2.0).tolist() == [False, False, False, False, True, True]
+    assert experience.departed(steps, 4.0).tolist() == [False] * 5 + [True]
+    assert not experience.departed(steps[:4], 2.0).any()  # it ends close: nothing departed
 
 
 def test_a_failure_that_looks_exactly_like_safe_experience_adds_no_negatives(make_policy, attempt) -> None:
@@ -352,6 +359,30 @@ def test_a_failure_that_looks_exactly_like_safe_experience_adds_no_negatives(mak
         policy.kvm.safe_offline.add(c_raw, skill=0, tag=episode)
     report = policy.kvm_feedback("catastrophe", trace, gradient_steps=0)
     assert report["culprit"] == 0 and report["negatives_added"] == 0
+
+
+def test_a_failure_that_leaves_the_safe_experience_for_good_is_blamed_from_where_it_left(
+    make_policy, make_kvm_config, attempt
+) -> None:
+    """The last steps of a failed attempt lie inside the spread of the safe experience's most varied phase (so
+    `known`), yet far from everything else the skill met (so `departed`): they are failure context unless
+    `kvm.departure_radius` is None."""
+    blamed = {}
+    for radius in (None, 2.0):
+        policy = make_policy(kvm=make_kvm_config(departure_radius=radius))
+        trace = attempt(policy, EGG, steps=6, seed=0)
+        sensed = torch.zeros(6, trace.contexts[0].shape[-1])
+        sensed[4:, 1] = 2.0  # the last two steps: 2 from the nearest safe sample
+        trace.contexts = [row.unsqueeze(0) for row in sensed]
+        query = policy.encode_query([EGG])
+        gen = torch.Generator().manual_seed(0)
+        for episode, side in enumerate((1.0, -1.0)):  # two episodes, alike but for a varied phase 4 apart
+            rows = 0.001 * torch.randn(20, len(sensed[0]), generator=gen)
+            rows[16:, 0] += 4.0 * side
+            policy.kvm.safe_offline.add(policy.kvm.raw_context(rows, query.expand(20, -1)), skill=0, tag=episode)
+        report = policy.kvm_feedback("catastrophe", trace, gradient_steps=0)
+        blamed[radius] = report["failure_context_steps"]
+    assert blamed == {None: [], 2.0: [4, 5]}
 
 
 def test_online_successes_and_demonstrations_are_never_another_skills_negatives(make_policy, make_kvm_config) -> None:

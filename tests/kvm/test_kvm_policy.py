@@ -301,6 +301,7 @@ def test_kvm_config_on_the_command_line_and_validation() -> None:
         ({"gate_window": 0}, "gate_window"),
         ({"energy_margin": 30.0}, "energy_margin"),
         ({"encoder_hidden": []}, "encoder_hidden"),
+        ({"departure_radius": 0.0}, "departure_radius"),
     ]:
         with pytest.raises(ValueError, match=name):
             KvmConfig(**bad)
