@@ -31,14 +31,15 @@ class SafeExperience:
             return torch.zeros(len(c_raw), dtype=torch.bool, device=c_raw.device)
         return self.distance(c_raw) <= torch.quantile(self.spread, quantile)
 
-    def departed(self, c_raw: Tensor, radius: float) -> Tensor:
+    def departed(self, c_raw: Tensor, radius: float | None) -> Tensor:
         """[T] bool over an attempt's steps, in order: the steps from which it stays further from the safe
         experience than `radius` times its median spread until its end (all of them if it never comes closer;
-        none if it ends close). The spread's upper quantiles, which `known` takes, come from the phases where safe
-        episodes differ most (the approach, the first contact); a shift that shows at the end of an attempt often
-        stays inside them while it departs from everything the skill met at that point."""
+        none if it ends close, or where `radius` is None: the rule is off). The spread's upper quantiles, which
+        `known` takes, come from the phases where safe episodes differ most (the approach, the first contact); a
+        shift that shows at the end of an attempt often stays inside them while it departs from everything the
+        skill met at that point."""
         out = torch.zeros(len(c_raw), dtype=torch.bool, device=c_raw.device)
-        if not len(self.spread) or not len(c_raw):
+        if radius is None or not len(self.spread) or not len(c_raw):
             return out
         close = torch.nonzero(self.distance(c_raw) <= radius * torch.quantile(self.spread, 0.5)).flatten()
         out[int(close[-1]) + 1 if len(close) else 0 :] = True

@@ -46,7 +46,6 @@ from .attribution import (
     knowledge_gap,
     normalised_relevance,
 )
-from .experience import SafeExperience
 from .fusion import fuse_weights, plain_scale
 from .telemetry import KvmTrace
 
@@ -286,13 +285,6 @@ def _stack_used(trace: KvmTrace, n_skills: int) -> tuple[Tensor, Tensor, Tensor]
     return v, w, inter
 
 
-def _departed(experience: SafeExperience, c_raw: Tensor, radius: float | None) -> Tensor:
-    """`SafeExperience.departed`, or no step where `kvm.departure_radius` is None."""
-    if radius is None:
-        return torch.zeros(len(c_raw), dtype=torch.bool, device=c_raw.device)
-    return experience.departed(c_raw, radius)
-
-
 def _steps(mask: Tensor) -> list[int]:
     """The indices of a per-step mask's True steps, for the feedback's report."""
     return torch.nonzero(mask).flatten().tolist()
@@ -376,7 +368,7 @@ def apply_feedback(
         context[-k:] = True
         experience = kvm.safe_experience(culprit)
         context &= ~experience.known(c_raw, cfg.known_safe_quantile)
-        context |= _departed(experience, c_raw, cfg.departure_radius)
+        context |= experience.departed(c_raw, cfg.departure_radius)
         hypothesis_id = None
         for h in kvm.hypotheses.ids(skill=culprit):
             if bool(_similar(kvm, mu[context], h).any()):
@@ -422,8 +414,8 @@ def apply_feedback(
                 kvm.add_safe(seen, skills, routine=False, demo=True)
                 safe_c.append(seen)
                 safe_s.append(skills.to(device))
-            unknown = ~experience.known(d_raw, cfg.known_safe_quantile) | _departed(
-                experience, d_raw, cfg.departure_radius
+            unknown = ~experience.known(d_raw, cfg.known_safe_quantile) | experience.departed(
+                d_raw, cfg.departure_radius
             )
             demo_negatives = _steps(unknown)
             if bool(unknown.any()):
