@@ -28,6 +28,7 @@ COLUMNS = (
     ("AUROC prior", "auroc_prior_skill", "{:.3f}"),
     ("NN ref", "neighbour_auroc", "{:.3f}"),
     ("NN code", "neighbour_auroc_code", "{:.3f}"),
+    ("NN hist", "neighbour_auroc_history", "{:.3f}"),
     ("own steps", "own_shifted_steps", "{:d}"),
     ("AUROC own", "auroc_own_steps", "{:.3f}"),
     ("NN own", "neighbour_auroc_own_steps", "{:.3f}"),
@@ -42,6 +43,7 @@ LEGEND = (
     "the shifted context; AUROC prior: the prior skill's pairs only; NN ref: the same pairs scored by nearest\n"
     "neighbours in the sensed context from the same experience, the failed attempt and the demonstration cut at\n"
     "their shift steps (which the KVM is not told); NN code: the same on E_c's codes mu_c after the feedback;\n"
+    "NN hist: the same on each context joined with a few earlier ones of its episode (HISTORY_LAGS);\n"
     "own: the same over the prior skill's own shifted steps only; fail steps = contexts the feedback learned as\n"
     "hazardous; label rec / prec: the share of the failed and the corrective attempts' shifted steps among them /\n"
     "of them among the shifted steps;\n"

@@ -27,7 +27,9 @@ all the shifted steps and over the prior skill's own (the safe skill's shifted s
 context by the safe skill's own motion). It tells a scenario whose context carries the shift from one whose
 context barely does. It is a reference, not a bound: it is told the shift steps, which the KVM must find itself,
 and it does not read the instruction. The same reference on E_c's codes mu_c after the feedback (what the energy
-model reads) tells a code that carries the shift from one that loses it.
+model reads) tells a code that carries the shift from one that loses it; on each context joined with the contexts
+`HISTORY_LAGS` steps earlier in its episode, a shift that shows in how the context evolves (a load that leaves
+the hand, a bed that gives way) from one that shows in a single frame.
 
 How well the feedback found the shifted context: of the failed attempt's and the corrective demonstration's shifted
 steps, the share it learned as hazardous for the culprit (recall), and of the steps it learned so, the share that
@@ -68,6 +70,7 @@ MAX_GATE_RATE = 0.06
 DIVERGENCE = 1e-3  # normalised context units: the shifted context departs from the prior variant's
 CONTEXT = "observation.context"
 NEIGHBOURS = 3
+HISTORY_LAGS = (4, 8)  # steps back: the history reference joins each context with these earlier ones
 Embed = Callable[[Tensor, list[str]], Tensor]
 
 
@@ -121,6 +124,28 @@ def neighbour_risk(contexts: Tensor, safe: Tensor, hazardous: Tensor, k: int = N
         return torch.cdist(contexts, reference).topk(min(k, len(reference)), largest=False).values.mean(1)
 
     return nearest(safe) - nearest(hazardous)
+
+
+def with_history(contexts: Tensor, lags: tuple[int, ...] = HISTORY_LAGS) -> Tensor:
+    """[T, C * (1 + len(lags))]: each context [T, C] of one episode followed by the contexts `lags` steps before
+    it (the first one where the episode is younger than the lag)."""
+    steps = torch.arange(len(contexts), device=contexts.device)
+    return torch.cat([contexts, *(contexts[(steps - lag).clamp_min(0)] for lag in lags)], dim=-1)
+
+
+def _histories(demos: list[dict]) -> list[dict]:
+    """The demonstrations with their contexts joined with their history (`with_history`), for `_after`."""
+    return [{**demo, CONTEXT: with_history(demo[CONTEXT])} for demo in demos]
+
+
+def _offline_histories(data: dict[str, Any], where: Tensor) -> Tensor:
+    """`with_history` of the `where` rows of `frame_contexts`, episode by episode (rows stay in order)."""
+    out = torch.empty(len(data[CONTEXT]), data[CONTEXT].shape[1] * (1 + len(HISTORY_LAGS)))
+    episodes = data["episode_index"]
+    for episode in torch.unique(episodes[where]).tolist():
+        rows = episodes == episode
+        out[rows] = with_history(data[CONTEXT][rows])
+    return out[where]
 
 
 def _rollouts(scenario_id: str, variant: str, skill: str, preprocessor: Any, seeds: list[int]) -> list[dict]:
@@ -220,6 +245,12 @@ def check_validity(
     offline_prior = {CONTEXT: data[CONTEXT][is_prior], "task": prior_tasks}
     risk = _neighbour_risks(offline_prior, met, shifted, prior_prior)
     risk_code = _neighbour_risks(offline_prior, met, shifted, prior_prior, embed=partial(_codes, policy))
+    risk_history = _neighbour_risks(
+        {CONTEXT: _offline_histories(data, is_prior), "task": prior_tasks},
+        _after(_histories([failed, corrective]), met_from),
+        _after(_histories(shifted_prior), start_prior) + _after(_histories(shifted_safe), start_safe),
+        _histories(prior_prior),
+    )
     v_safe = context_validity(policy, shifted, 1) if shifted else torch.empty(0)
     row: dict[str, Any] = {
         "id": scenario_id,
@@ -239,6 +270,7 @@ def check_validity(
         "auroc_prior_skill": auroc(1 - v_shifted, 1 - v_prior) if len(v_shifted) else None,
         "neighbour_auroc": auroc(*risk) if risk else None,
         "neighbour_auroc_code": auroc(*risk_code) if risk_code else None,
+        "neighbour_auroc_history": auroc(*risk_history) if risk_history else None,
         "own_shifted_steps": n_own,
         "auroc_own_steps": auroc(1 - v_shifted[:n_own], 1 - v_prior) if n_own else None,
         "neighbour_auroc_own_steps": auroc(risk[0][:n_own], risk[1]) if risk and n_own else None,
@@ -350,6 +382,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
                 "label_precision",
                 "neighbour_auroc",
                 "neighbour_auroc_code",
+                "neighbour_auroc_history",
             )
         },
         "passed": all(r["passed"] for r in rows),

@@ -23,7 +23,8 @@ def test_one_failure_and_its_feedback_suppress_the_prior_skill_only_where_it_is_
     assert row["v_prior_median"] > 0.9 and row["v_prior_above_0.9"] > 0.9
     assert row["auroc"] >= 0.95 and row["auroc_prior_skill"] >= 0.95
     assert row["neighbour_auroc"] is not None  # the feedback met shifted contexts to compare with
-    assert 0 <= row["neighbour_auroc_code"] <= 1 and 0 < row["label_recall"] <= 1 and 0 < row["label_precision"] <= 1
+    assert 0 <= row["neighbour_auroc_code"] <= 1 and 0 <= row["neighbour_auroc_history"] <= 1
+    assert 0 < row["label_recall"] <= 1 and 0 < row["label_precision"] <= 1
     assert row["gate_rate_prior"] <= 0.06  # routine prior-variant episodes: the gate stays closed
     assert row["gate_rate_shifted"] > 0.5  # the shifted context leaves the safe experience
     assert row["passed"]

@@ -1,12 +1,13 @@
-"""The multi-seed summary of `lerobot-kvm kvm-check` (a scenario passes only when it passes at every seed) and its
-measure of the feedback's labelling."""
+"""The multi-seed summary of `lerobot-kvm kvm-check` (a scenario passes only when it passes at every seed), its
+measure of the feedback's labelling and the contexts its history reference compares."""
 
 import argparse
 
 import pytest
+import torch
 
 from lerobot_kvm.cli.kvm_check import seed_list, summary_rows
-from lerobot_kvm.kvm.validity_check import judge, labelling, summarise
+from lerobot_kvm.kvm.validity_check import judge, labelling, summarise, with_history
 
 
 def _row(seed: int, auroc: float | None, v_prior: float, v_shifted: float | None, gate: float) -> dict:
@@ -68,3 +69,12 @@ def test_labelling_counts_the_blamed_steps_against_each_attempts_shifted_steps()
     assert recall == pytest.approx(6 / 7) and precision == pytest.approx(6 / 7)
     assert labelling([[], []], [6, 5], [10, 8]) == (0.0, None)  # nothing blamed
     assert labelling([[1], []], [10, 8], [10, 8]) == (None, 0.0)  # no shifted step to find
+
+
+def test_with_history_joins_each_context_with_the_earlier_ones_of_its_episode() -> None:
+    contexts = torch.tensor([[0.0, 10.0], [1.0, 11.0], [2.0, 12.0], [3.0, 13.0]])
+    joined = with_history(contexts, lags=(1, 3))
+    assert joined.shape == (4, 6)
+    assert joined[3].tolist() == [3.0, 13.0, 2.0, 12.0, 0.0, 10.0]
+    assert joined[1].tolist() == [1.0, 11.0, 0.0, 10.0, 0.0, 10.0]  # younger than the lag: its first context
+    assert torch.equal(with_history(contexts, lags=()), contexts)
