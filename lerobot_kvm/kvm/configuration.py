@@ -90,12 +90,16 @@ class KvmConfig:
     # frames offline, and the safe samples a feedback's update replays (the few negatives of one failure must
     # not suppress the culprit where its own safe experience lies).
     hard_safe_capacity: int = 512
-    hard_safe_replay: int = 16  # replayed hard safe samples per offline / online step (0: off)
+    hard_safe_replay: int = 16  # replayed hard safe samples per offline step (0: off)
     hard_safe_validity: float = 0.5
 
     # ------------------------------------------------------------------ online learning (feedback API)
     feedback_steps: int = 100  # default gradient-step budget of one feedback call
-    feedback_batch: int = 128
+    # One failure gives a few dozen negatives, and which held-out contexts its update suppresses moved with the
+    # order its minibatches were drawn in (kvm-check, categories A and B): a large batch averages that draw out,
+    # and the hard safe samples keep their share of it (1/8), or the prior context is suppressed more often.
+    feedback_batch: int = 512
+    feedback_hard_safe_replay: int = 64  # replayed hard safe samples per feedback step (0: off)
     feedback_lr: float = 1e-3
     fail_context_steps: int = 10  # the last K steps before a failure are part of the failure context ...
     # ... unless they lie inside the culprit's safe experience (`SafeExperience.known`): the quantile of the safe
@@ -184,7 +188,8 @@ class KvmConfig:
         for name, value in positive_ints.items():
             if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
                 raise ValueError(f"`kvm.{name}` must be a positive integer, got {value!r}")
-        for name in ("gate_min_count", "feedback_steps", "focused_steps"):
+        non_negative_ints = ("gate_min_count", "feedback_steps", "focused_steps", "hard_safe_replay")
+        for name in (*non_negative_ints, "feedback_hard_safe_replay"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise ValueError(f"`kvm.{name}` must be a non-negative integer, got {value!r}")

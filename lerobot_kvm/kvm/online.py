@@ -15,7 +15,7 @@ after an attempt:
   safe experience or leave it for good (`SafeExperience`), more negatives for the culprit: the demonstration ran
   where the culprit failed, and once the shift shows, its contexts are what the culprit would meet there. Then a
   fixed budget of gradient steps updates the KVM, replaying the safe memory so that what was safe stays safe (the
-  safe samples the update judges invalid are replayed at every step after, `kvm.hard_safe_replay`). This first
+  safe samples the update judges invalid are replayed at every step after, `kvm.feedback_hard_safe_replay`). This first
   update is what lowers v(culprit, failure context) already on the next attempt; the hypothesis governs
   confirmation. With a demonstration, the knowledge gap is tested at once (`kvm.gap_on_failure`): if every
   alternative to the culprit is weak in the failure context, suppression alone would leave no strategy, so a new

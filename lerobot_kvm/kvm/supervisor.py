@@ -468,7 +468,7 @@ class KnowledgeValidityModule(nn.Module):
                 for buffer, k, recorded in (
                     (self.safe_offline, replay, True),
                     (self.safe_online, replay, False),
-                    (self.safe_hard, cfg.hard_safe_replay, True),
+                    (self.safe_hard, cfg.feedback_hard_safe_replay, True),
                 ):
                     if len(buffer):
                         c, s, f = self._replay(buffer, k)

@@ -35,6 +35,7 @@ def kvm_config(**overrides: Any) -> KvmConfig:
         replay_size=8,
         feedback_steps=5,
         feedback_batch=16,
+        feedback_hard_safe_replay=4,
         focused_steps=3,
         trace_capacity=100,
     )

@@ -239,12 +239,17 @@ def test_a_feedback_update_keeps_the_safe_samples_it_judges_invalid(make_policy,
 
     kvm.loss_terms = energies_of
     fail = torch.randn(3, kvm.encoder.raw_dim)
-    kvm.train_online(1, policy.kvm_active_skills(), (safe[:0], torch.zeros(0).long()), (fail, torch.zeros(3).long()))
+    update = (policy.kvm_active_skills(), (safe[:0], torch.zeros(0).long()), (fail, torch.zeros(3).long()))
+    kvm.train_online(1, *update)
     stored = kvm.safe_hard.data[kvm.safe_hard.filled()]
     if judged_invalid:
         recorded = seen[0][seen[0].abs().amax(1) < 25]
         assert len(stored) == len(recorded) > 0 and torch.equal(stored, recorded)
         assert len(recorded) < len(seen[0])  # the online rows were replayed too
+        kvm.train_online(1, *update)
+        n_hard = kvm.config.feedback_hard_safe_replay  # a later step replays that many hard rows, last
+        assert len(seen[1]) == len(seen[0]) + n_hard
+        assert (torch.cdist(seen[1][-n_hard:], stored).min(1).values < 1e-6).all()
     else:
         assert not len(stored)
 
@@ -302,6 +307,7 @@ def test_kvm_config_on_the_command_line_and_validation() -> None:
         ({"energy_margin": 30.0}, "energy_margin"),
         ({"encoder_hidden": []}, "encoder_hidden"),
         ({"departure_radius": 0.0}, "departure_radius"),
+        ({"feedback_hard_safe_replay": -1}, "feedback_hard_safe_replay"),
     ]:
         with pytest.raises(ValueError, match=name):
             KvmConfig(**bad)
