@@ -188,8 +188,14 @@ class KvmConfig:
         for name, value in positive_ints.items():
             if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
                 raise ValueError(f"`kvm.{name}` must be a positive integer, got {value!r}")
-        non_negative_ints = ("gate_min_count", "feedback_steps", "focused_steps", "hard_safe_replay")
-        for name in (*non_negative_ints, "feedback_hard_safe_replay"):
+        non_negative_ints = (
+            "gate_min_count",
+            "feedback_steps",
+            "focused_steps",
+            "hard_safe_replay",
+            "feedback_hard_safe_replay",
+        )
+        for name in non_negative_ints:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise ValueError(f"`kvm.{name}` must be a non-negative integer, got {value!r}")
