@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 
 from ..envs.scenario import resolve_tasks
-from ..kvm.configuration import ONLINE_ENCODERS, KvmConfig
+from ..kvm.configuration import ONLINE_ENCODERS, RISK_MODELS, KvmConfig
 from .table import results_table
 
 COLUMNS = (
@@ -105,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
         offline_steps=(args.offline_steps, args.new_skill_steps),
         online_encoder=args.online_encoder,
         feedback_steps=args.feedback_steps,
+        risk_model=args.risk_model,
     )
     print(results_table(report["scenarios"], COLUMNS))
     print(LEGEND)
@@ -141,6 +142,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         type=int,
         default=KvmConfig.feedback_steps,
         help="gradient steps of the one feedback (policy.kvm.feedback_steps; the benchmark gives every method 100)",
+    )
+    p.add_argument(
+        "--risk-model",
+        choices=RISK_MODELS,
+        default=KvmConfig.risk_model,
+        help="how the KVM scores a (context, skill) pair (policy.kvm.risk_model)",
     )
     p.add_argument(
         "--seeds", type=seed_list, default=(0,), help="comma-separated seeds; each scenario is checked at each of them"

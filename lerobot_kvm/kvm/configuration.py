@@ -8,7 +8,7 @@ every field is reachable as `--policy.kvm.<field>=...` (draccus nested dataclass
 
 from dataclasses import dataclass, field
 
-RISK_MODELS = ("energy", "bce")
+RISK_MODELS = ("energy", "bce", "neighbour")
 GAP_INITS = ("culprit", "orthogonal")
 ONLINE_ENCODERS = ("reconstruction", "joint")
 ATTRIBUTIONS = ("counterfactual", "relevance")
@@ -19,7 +19,11 @@ class KvmConfig:
     # ------------------------------------------------------------------ ablation switches (same checkpoint)
     enabled: bool = True  # False: v is never computed, actions are exactly the CODA-Prompt core's
     smart_gate: bool = True  # False ("w/o smart gate"): full assessment at every step
-    risk_model: str = "energy"  # "energy" (E_theta, eq. 2) or "bce" (MLP classifier trained with BCE)
+    risk_model: str = "energy"  # "energy" (E_theta, eq. 2) or "bce" (MLP classifier trained with BCE) ...
+    # ... or "neighbour": E_theta, except for a skill with failures in memory, whose energy comes from its failure
+    # and safe contexts' nearest neighbours on E_c's codes, crossing eq. 2's midpoint at the `neighbour_quantile` of
+    # its own recorded safe episodes scored as held-out ones (`kvm.neighbour`)
+    neighbour_quantile: float = 0.95
     force_validity: float | None = None  # testing/diagnostics: every candidate's v set to this value
 
     # ------------------------------------------------------------------ context encoder E_c (App. E: MLP 2x128)
@@ -235,6 +239,7 @@ class KvmConfig:
             "prune_threshold": self.prune_threshold,
             "known_safe_quantile": self.known_safe_quantile,
             "attribution_margin": self.attribution_margin,
+            "neighbour_quantile": self.neighbour_quantile,
         }
         for name, value in unit.items():
             if not 0.0 <= value <= 1.0:

@@ -25,6 +25,7 @@ from .gate import SmartGate
 from .losses import bce_loss, contrastive_loss, energy_loss, total_loss
 from .memory import DEMO, PERMANENT, ROUTINE, SYNTHETIC, EpisodeLabels, SampleBuffer
 from .metabolism import SkillMetabolism
+from .neighbour import NeighbourEnergy, calibrate
 from .telemetry import KvmStepTelemetry
 
 GATE_OVERRIDES = (None, "open", "closed")
@@ -66,6 +67,7 @@ class KnowledgeValidityModule(nn.Module):
         # Runtime only (never saved): a forced gate state for overhead measurement and the online sigma window.
         self.gate_override: str | None = None
         self._sigma_history: deque[Tensor] = deque(maxlen=config.context_window)
+        self._neighbours: tuple[tuple, dict[int, NeighbourEnergy]] | None = None  # cache of `neighbour_energies`
 
     # ----------------------------------------------------------------- runtime
     def train(self, mode: bool = True) -> "KnowledgeValidityModule":
@@ -118,15 +120,42 @@ class KnowledgeValidityModule(nn.Module):
         return mu, sigma2, torch.isfinite(sigma2)
 
     def risk_energy(self, h: Tensor, risk_model: str | None = None) -> Tensor:
-        """Energy of features h [..., F] under the configured risk model (energy or BCE energy-equivalent)."""
+        """Energy of features h [..., F] under the configured risk model (E_theta, or the BCE classifier's
+        energy-equivalent); the "neighbour" model starts from E_theta (`skill_energies`)."""
         if (risk_model or self.config.risk_model) == "bce":
             return RiskClassifier.energy_equivalent(self.classifier(h), self.config.gamma, self.config.l0)
         return self.energy(h)
 
     def skill_energies(self, mu: Tensor, n_skills: int, risk_model: str | None = None) -> Tensor:
-        """E [B, S] of every context with every skill begun in the pool."""
+        """E [B, S] of every context with every skill begun in the pool. With the "neighbour" risk model a skill
+        with failures in memory takes its `NeighbourEnergy` instead of E_theta's."""
+        model = risk_model or self.config.risk_model
         skills = torch.arange(n_skills, device=mu.device)
-        return self.risk_energy(self.joint.all_skills(mu, skills), risk_model)
+        energy = self.risk_energy(self.joint.all_skills(mu, skills), model)
+        if model == "neighbour":
+            for skill, neighbours in self.neighbour_energies(n_skills).items():
+                energy[:, skill] = neighbours.energy(mu, self.config.gamma, self.config.l0)
+        return energy
+
+    @torch.no_grad()
+    def neighbour_energies(self, n_skills: int) -> dict[int, NeighbourEnergy]:
+        """Per skill with failures in memory, its nearest-neighbour energy on the current codes; rebuilt when E_c
+        or a memory has changed since (in-place updates and loads bump the tensors' version counters)."""
+        buffers = (self.safe_offline, self.safe_online, self.fail_online, self.fail_offline)
+        key = (n_skills, *(t._version for t in (*self.encoder.parameters(), *(b.stamp for b in buffers))))
+        if self._neighbours is None or self._neighbours[0] != key:
+            fails = [(b, b.filled()) for b in (self.fail_online, self.fail_offline)]
+            energies = {}
+            for skill in range(n_skills):
+                fail = torch.cat([b.data[i][b.skill[i] == skill] for b, i in fails])
+                if not len(fail):
+                    continue
+                safe, tags = self.safe_samples(skill)
+                found = calibrate(self.encoder(safe)[0], tags, self.encoder(fail)[0], self.config.neighbour_quantile)
+                if found is not None:
+                    energies[skill] = found
+            self._neighbours = (key, energies)
+        return self._neighbours[1]
 
     def validity_of(self, c_raw: Tensor, n_skills: int, risk_model: str | None = None) -> Tensor:
         """v [B, S] with the gate bypassed (the energy model's judgement everywhere); invalid rows -> 0."""
@@ -515,12 +544,16 @@ class KnowledgeValidityModule(nn.Module):
 
     # ----------------------------------------------------------------- helpers for the online API
     @torch.no_grad()
-    def safe_experience(self, skill: int) -> SafeExperience:
-        """`skill`'s safe memory (recorded and met online) with the spread of its recorded episodes (`episodes` of
-        `offline_step` tag them)."""
+    def safe_samples(self, skill: int) -> tuple[Tensor, Tensor]:
+        """`skill`'s safe memory (recorded and met online) [N, D] and the recorded episode of each sample [N] (the
+        `episodes` of `offline_step`; -1: untagged)."""
         buffers = [(b, b.filled()) for b in (self.safe_offline, self.safe_online)]
         samples = torch.cat([b.data[i][b.skill[i] == skill] for b, i in buffers])
-        tags = torch.cat([b.tag[i][b.skill[i] == skill] for b, i in buffers])
+        return samples, torch.cat([b.tag[i][b.skill[i] == skill] for b, i in buffers])
+
+    def safe_experience(self, skill: int) -> SafeExperience:
+        """`skill`'s safe memory with the spread of its recorded episodes."""
+        samples, tags = self.safe_samples(skill)
         tagged = tags >= 0
         if len(torch.unique(tags[tagged])) < 2:
             return SafeExperience(samples, samples.new_zeros(0))

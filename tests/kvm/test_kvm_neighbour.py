@@ -1,0 +1,73 @@
+"""The "neighbour" risk model: its calibration against hand-computed held-out scores, and its place in the KVM
+(E_theta for skills without failures, rebuilt when E_c or a memory changes)."""
+
+import pytest
+import torch
+
+from lerobot_kvm.kvm.energy import validity
+from lerobot_kvm.kvm.memory import ROUTINE
+from lerobot_kvm.kvm.neighbour import SLOPE, calibrate
+
+SAFE = torch.tensor([[0.0], [0.1], [0.2], [0.05], [0.15], [0.25], [1.0], [1.1], [1.2]])
+TAGS = torch.tensor([0, 0, 0, 1, 1, 1, 2, 2, 2])
+FAIL = torch.tensor([[5.0], [5.1], [5.2]])
+
+
+def mean3(x: float, points: list[float]) -> float:
+    return sum(sorted(abs(x - p) for p in points)[:3]) / 3
+
+
+def test_calibration_scores_each_recorded_episode_as_held_out() -> None:
+    fails = FAIL.flatten().tolist()
+    scores = []
+    for i, x in enumerate(SAFE.flatten().tolist()):
+        others = [p for p, t in zip(SAFE.flatten().tolist(), TAGS.tolist(), strict=True) if t != TAGS[i]]
+        scores.append(mean3(x, others) - mean3(x, fails))
+    scores_t = torch.tensor(scores)
+    threshold = float(torch.quantile(scores_t, 0.9))
+    found = calibrate(SAFE, TAGS, FAIL, 0.9)
+    assert found.threshold == pytest.approx(threshold, abs=1e-5)
+    assert found.width == pytest.approx(threshold - float(scores_t.median()), abs=1e-5)
+    # eq. 2 crosses 1/2 at the threshold and gives sigmoid(SLOPE) at the held-out median
+    x = torch.tensor([[3.0]])
+    risk = mean3(3.0, SAFE.flatten().tolist()) - mean3(3.0, fails)
+    energy = found.energy(x, gamma=1.0, l0=-5.0)
+    assert float(energy) == pytest.approx(5.0 + SLOPE * (risk - threshold) / found.width, abs=1e-4)
+    v = validity(energy, 1.0, -5.0)
+    assert float(v) < 0.1  # 3.0 lies nearer the failures than any held-out safe sample
+    assert float(validity(found.energy(torch.tensor([[0.1]]), 1.0, -5.0), 1.0, -5.0)) > 0.9
+
+
+def test_calibration_needs_failures_and_two_recorded_episodes() -> None:
+    assert calibrate(SAFE, TAGS, FAIL[:0], 0.95) is None
+    assert calibrate(SAFE, torch.zeros_like(TAGS), FAIL, 0.95) is None
+    assert calibrate(SAFE, torch.full_like(TAGS, -1), FAIL, 0.95) is None
+
+
+def test_only_skills_with_failures_leave_the_energy_model(make_policy, make_kvm_config) -> None:
+    policy = make_policy(kvm=make_kvm_config(risk_model="neighbour"))
+    policy.begin_new_skill("gentle_grasp")
+    policy.eval()
+    kvm = policy.kvm
+    gen = torch.Generator().manual_seed(0)
+    safe = torch.randn(24, kvm.encoder.raw_dim, generator=gen)
+    kvm.safe_offline.add(safe, torch.zeros(24, dtype=torch.long), ROUTINE, torch.arange(24) // 8)
+    probe = torch.randn(6, kvm.encoder.raw_dim, generator=gen)
+    mu = kvm.encode(probe)[0]
+    with torch.no_grad():
+        assert torch.equal(kvm.skill_energies(mu, 2), kvm.skill_energies(mu, 2, "energy"))  # no failure yet
+        fail = safe[:4] + 5.0
+        kvm.add_fail(fail, torch.zeros(4, dtype=torch.long), hypothesis_id=0)
+        mixed = kvm.skill_energies(mu, 2)
+        plain = kvm.skill_energies(mu, 2, "energy")
+        assert torch.equal(mixed[:, 1], plain[:, 1]) and not torch.equal(mixed[:, 0], plain[:, 0])
+        samples, tags = kvm.safe_samples(0)
+        expected = calibrate(kvm.encoder(samples)[0], tags, kvm.encoder(fail)[0], 0.95)
+        assert torch.allclose(mixed[:, 0], expected.energy(mu, 1.0, -5.0))
+        v_fail = validity(kvm.skill_energies(kvm.encode(fail)[0], 2), 1.0, -5.0)[:, 0]
+        assert (v_fail < 0.5).all()  # the failures themselves are invalid for their skill
+        # E_c changes in place (a training step): the energy follows the new codes
+        next(kvm.encoder.parameters()).add_(0.5)
+        mu = kvm.encode(probe)[0]
+        expected = calibrate(kvm.encoder(samples)[0], tags, kvm.encoder(fail)[0], 0.95)
+        assert torch.allclose(kvm.skill_energies(mu, 2)[:, 0], expected.energy(mu, 1.0, -5.0))
