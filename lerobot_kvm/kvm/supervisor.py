@@ -140,9 +140,12 @@ class KnowledgeValidityModule(nn.Module):
     @torch.no_grad()
     def neighbour_energies(self, n_skills: int) -> dict[int, NeighbourEnergy]:
         """Per skill with failures in memory, its nearest-neighbour energy on the current codes; rebuilt when E_c
-        or a memory has changed since (in-place updates and loads bump the tensors' version counters)."""
+        or a memory has changed since (in-place updates and loads bump the tensors' version counters; a move
+        changes the device or dtype)."""
         buffers = (self.safe_offline, self.safe_online, self.fail_online, self.fail_offline)
-        key = (n_skills, *(t._version for t in (*self.encoder.parameters(), *(b.stamp for b in buffers))))
+        params = list(self.encoder.parameters())
+        versions = (t._version for t in (*params, *(b.stamp for b in buffers)))
+        key = (n_skills, params[0].device, params[0].dtype, *versions)
         if self._neighbours is None or self._neighbours[0] != key:
             fails = [(b, b.filled()) for b in (self.fail_online, self.fail_offline)]
             energies = {}
