@@ -147,10 +147,9 @@ class KnowledgeValidityModule(nn.Module):
         versions = (t._version for t in (*params, *(b.stamp for b in buffers)))
         key = (n_skills, params[0].device, params[0].dtype, *versions)
         if self._neighbours is None or self._neighbours[0] != key:
-            fails = [(b, b.filled()) for b in (self.fail_online, self.fail_offline)]
             energies = {}
             for skill in range(n_skills):
-                fail = torch.cat([b.data[i][b.skill[i] == skill] for b, i in fails])
+                fail, _ = _of_skill((self.fail_online, self.fail_offline), skill)
                 if not len(fail):
                     continue
                 safe, tags = self.safe_samples(skill)
@@ -550,9 +549,7 @@ class KnowledgeValidityModule(nn.Module):
     def safe_samples(self, skill: int) -> tuple[Tensor, Tensor]:
         """`skill`'s safe memory (recorded and met online) [N, D] and the recorded episode of each sample [N] (the
         `episodes` of `offline_step`; -1: untagged)."""
-        buffers = [(b, b.filled()) for b in (self.safe_offline, self.safe_online)]
-        samples = torch.cat([b.data[i][b.skill[i] == skill] for b, i in buffers])
-        return samples, torch.cat([b.tag[i][b.skill[i] == skill] for b, i in buffers])
+        return _of_skill((self.safe_offline, self.safe_online), skill)
 
     def safe_experience(self, skill: int) -> SafeExperience:
         """`skill`'s safe memory with the spread of its recorded episodes."""
@@ -587,6 +584,17 @@ class KnowledgeValidityModule(nn.Module):
 
     def n_permanent(self) -> int:
         return int(((self.fail_online.flags & PERMANENT) > 0).sum())
+
+
+def _of_skill(buffers: tuple[SampleBuffer, ...], skill: int) -> tuple[Tensor, Tensor]:
+    """The stored rows of `skill` in the buffers [N, D] and their tags [N]."""
+    rows, tags = [], []
+    for buffer in buffers:
+        i = buffer.filled()
+        mine = buffer.skill[i] == skill
+        rows.append(buffer.data[i][mine])
+        tags.append(buffer.tag[i][mine])
+    return torch.cat(rows), torch.cat(tags)
 
 
 def _at_most(values: Tensor, bound: float) -> bool:
