@@ -22,8 +22,10 @@ class KvmConfig:
     risk_model: str = "energy"  # "energy" (E_theta, eq. 2) or "bce" (MLP classifier trained with BCE) ...
     # ... or "neighbour": E_theta, except for a skill with failures in memory, whose energy comes from its failure
     # and safe contexts' nearest neighbours on E_c's codes, crossing eq. 2's midpoint at the `neighbour_quantile` of
-    # its own recorded safe episodes scored as held-out ones (`kvm.neighbour`)
+    # its own recorded safe episodes scored as held-out ones (`kvm.neighbour`), with gamma * E rising by
+    # `neighbour_slope` per spread between their median and that quantile (v = sigmoid(slope) at the median)
     neighbour_quantile: float = 0.95
+    neighbour_slope: float = 10.0
     force_validity: float | None = None  # testing/diagnostics: every candidate's v set to this value
 
     # ------------------------------------------------------------------ context encoder E_c (App. E: MLP 2x128)
@@ -214,6 +216,7 @@ class KvmConfig:
             "fusion_eps": self.fusion_eps,
             "feedback_lr": self.feedback_lr,
             "focused_lr": self.focused_lr,
+            "neighbour_slope": self.neighbour_slope,
         }
         for name, value in positive_floats.items():
             if not value > 0:

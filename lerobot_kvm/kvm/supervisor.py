@@ -153,7 +153,10 @@ class KnowledgeValidityModule(nn.Module):
                 if not len(fail):
                     continue
                 safe, tags = self.safe_samples(skill)
-                found = calibrate(self.encoder(safe)[0], tags, self.encoder(fail)[0], self.config.neighbour_quantile)
+                cfg = self.config
+                found = calibrate(
+                    self.encoder(safe)[0], tags, self.encoder(fail)[0], cfg.neighbour_quantile, cfg.neighbour_slope
+                )
                 if found is not None:
                     energies[skill] = found
             self._neighbours = (key, energies)

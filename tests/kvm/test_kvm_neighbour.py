@@ -6,7 +6,9 @@ import torch
 
 from lerobot_kvm.kvm.energy import validity
 from lerobot_kvm.kvm.memory import ROUTINE
-from lerobot_kvm.kvm.neighbour import SLOPE, calibrate
+from lerobot_kvm.kvm.neighbour import calibrate
+
+SLOPE = 10.0
 
 SAFE = torch.tensor([[0.0], [0.1], [0.2], [0.05], [0.15], [0.25], [1.0], [1.1], [1.2]])
 TAGS = torch.tensor([0, 0, 0, 1, 1, 1, 2, 2, 2])
@@ -25,7 +27,7 @@ def test_calibration_scores_each_recorded_episode_as_held_out() -> None:
         scores.append(mean3(x, others) - mean3(x, fails))
     scores_t = torch.tensor(scores)
     threshold = float(torch.quantile(scores_t, 0.9))
-    found = calibrate(SAFE, TAGS, FAIL, 0.9)
+    found = calibrate(SAFE, TAGS, FAIL, 0.9, SLOPE)
     assert found.threshold == pytest.approx(threshold, abs=1e-5)
     assert found.width == pytest.approx(threshold - float(scores_t.median()), abs=1e-5)
     # eq. 2 crosses 1/2 at the threshold and gives sigmoid(SLOPE) at the held-out median
@@ -39,9 +41,9 @@ def test_calibration_scores_each_recorded_episode_as_held_out() -> None:
 
 
 def test_calibration_needs_failures_and_two_recorded_episodes() -> None:
-    assert calibrate(SAFE, TAGS, FAIL[:0], 0.95) is None
-    assert calibrate(SAFE, torch.zeros_like(TAGS), FAIL, 0.95) is None
-    assert calibrate(SAFE, torch.full_like(TAGS, -1), FAIL, 0.95) is None
+    assert calibrate(SAFE, TAGS, FAIL[:0], 0.95, SLOPE) is None
+    assert calibrate(SAFE, torch.zeros_like(TAGS), FAIL, 0.95, SLOPE) is None
+    assert calibrate(SAFE, torch.full_like(TAGS, -1), FAIL, 0.95, SLOPE) is None
 
 
 def test_only_skills_with_failures_leave_the_energy_model(make_policy, make_kvm_config) -> None:
@@ -62,12 +64,12 @@ def test_only_skills_with_failures_leave_the_energy_model(make_policy, make_kvm_
         plain = kvm.skill_energies(mu, 2, "energy")
         assert torch.equal(mixed[:, 1], plain[:, 1]) and not torch.equal(mixed[:, 0], plain[:, 0])
         samples, tags = kvm.safe_samples(0)
-        expected = calibrate(kvm.encoder(samples)[0], tags, kvm.encoder(fail)[0], 0.95)
+        expected = calibrate(kvm.encoder(samples)[0], tags, kvm.encoder(fail)[0], 0.95, SLOPE)
         assert torch.allclose(mixed[:, 0], expected.energy(mu, 1.0, -5.0))
         v_fail = validity(kvm.skill_energies(kvm.encode(fail)[0], 2), 1.0, -5.0)[:, 0]
         assert (v_fail < 0.5).all()  # the failures themselves are invalid for their skill
         # E_c changes in place (a training step): the energy follows the new codes
         next(kvm.encoder.parameters()).add_(0.5)
         mu = kvm.encode(probe)[0]
-        expected = calibrate(kvm.encoder(samples)[0], tags, kvm.encoder(fail)[0], 0.95)
+        expected = calibrate(kvm.encoder(samples)[0], tags, kvm.encoder(fail)[0], 0.95, SLOPE)
         assert torch.allclose(kvm.skill_energies(mu, 2)[:, 0], expected.energy(mu, 1.0, -5.0))

@@ -308,6 +308,8 @@ def test_kvm_config_on_the_command_line_and_validation() -> None:
         ({"encoder_hidden": []}, "encoder_hidden"),
         ({"departure_radius": 0.0}, "departure_radius"),
         ({"feedback_hard_safe_replay": -1}, "feedback_hard_safe_replay"),
+        ({"neighbour_quantile": 1.2}, "neighbour_quantile"),
+        ({"neighbour_slope": 0.0}, "neighbour_slope"),
     ]:
         with pytest.raises(ValueError, match=name):
             KvmConfig(**bad)
