@@ -67,7 +67,7 @@ class KnowledgeValidityModule(nn.Module):
         # Runtime only (never saved): a forced gate state for overhead measurement and the online sigma window.
         self.gate_override: str | None = None
         self._sigma_history: deque[Tensor] = deque(maxlen=config.context_window)
-        self._neighbours: tuple[tuple, dict[int, NeighbourEnergy]] | None = None  # cache of `neighbour_energies`
+        self._neighbours: tuple[tuple, NeighbourEnergy | None] | None = None  # cache of `neighbour_energies`
 
     # ----------------------------------------------------------------- runtime
     def train(self, mode: bool = True) -> "KnowledgeValidityModule":
@@ -133,32 +133,38 @@ class KnowledgeValidityModule(nn.Module):
         skills = torch.arange(n_skills, device=mu.device)
         energy = self.risk_energy(self.joint.all_skills(mu, skills), model)
         if model == "neighbour":
-            for skill, neighbours in self.neighbour_energies(n_skills).items():
-                energy[:, skill] = neighbours.energy(mu, self.config.gamma, self.config.l0)
+            neighbours = self.neighbour_energies(n_skills)
+            if neighbours is not None:
+                energy[:, neighbours.skills] = neighbours.energy(mu, self.config.gamma, self.config.l0)
         return energy
 
     @torch.no_grad()
-    def neighbour_energies(self, n_skills: int) -> dict[int, NeighbourEnergy]:
-        """Per skill with failures in memory, its nearest-neighbour energy on the current codes; rebuilt when E_c
-        or a memory has changed since (in-place updates and loads bump the tensors' version counters; a move
-        changes the device or dtype)."""
+    def neighbour_energies(self, n_skills: int) -> NeighbourEnergy | None:
+        """The nearest-neighbour energies of the skills with failures in memory on the current codes (None: no such
+        skill); rebuilt when E_c or a memory has changed since (in-place updates and loads bump the tensors'
+        version counters; a move changes the device or dtype)."""
         buffers = (self.safe_offline, self.safe_online, self.fail_online, self.fail_offline)
         params = list(self.encoder.parameters())
         versions = (t._version for t in (*params, *(b.stamp for b in buffers)))
         key = (n_skills, params[0].device, params[0].dtype, *versions)
         if self._neighbours is None or self._neighbours[0] != key:
-            energies = {}
+            cfg = self.config
+            skills, safe_codes, fail_codes, calibrations = [], [], [], []
             for skill in range(n_skills):
                 fail, _ = _of_skill((self.fail_online, self.fail_offline), skill)
                 if not len(fail):
                     continue
                 safe, tags = self.safe_samples(skill)
-                cfg = self.config
-                found = calibrate(
-                    self.encoder(safe)[0], tags, self.encoder(fail)[0], cfg.neighbour_quantile, cfg.neighbour_slope
-                )
+                safe, fail = self.encoder(safe)[0], self.encoder(fail)[0]
+                found = calibrate(safe, tags, fail, cfg.neighbour_quantile)
                 if found is not None:
-                    energies[skill] = found
+                    skills.append(skill)
+                    safe_codes.append(safe)
+                    fail_codes.append(fail)
+                    calibrations.append(found)
+            energies = (
+                NeighbourEnergy(skills, safe_codes, fail_codes, calibrations, cfg.neighbour_slope) if skills else None
+            )
             self._neighbours = (key, energies)
         return self._neighbours[1]
 

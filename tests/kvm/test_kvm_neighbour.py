@@ -6,7 +6,7 @@ import torch
 
 from lerobot_kvm.kvm.energy import validity
 from lerobot_kvm.kvm.memory import ROUTINE
-from lerobot_kvm.kvm.neighbour import calibrate
+from lerobot_kvm.kvm.neighbour import NeighbourEnergy, References, calibrate
 
 SLOPE = 10.0
 
@@ -27,23 +27,37 @@ def test_calibration_scores_each_recorded_episode_as_held_out() -> None:
         scores.append(mean3(x, others) - mean3(x, fails))
     scores_t = torch.tensor(scores)
     threshold = float(torch.quantile(scores_t, 0.9))
-    found = calibrate(SAFE, TAGS, FAIL, 0.9, SLOPE)
+    found = calibrate(SAFE, TAGS, FAIL, 0.9)
     assert found.threshold == pytest.approx(threshold, abs=1e-5)
     assert found.width == pytest.approx(threshold - float(scores_t.median()), abs=1e-5)
     # eq. 2 crosses 1/2 at the threshold and gives sigmoid(SLOPE) at the held-out median
+    energies = NeighbourEnergy([0], [SAFE], [FAIL], [found], SLOPE)
     x = torch.tensor([[3.0]])
     risk = mean3(3.0, SAFE.flatten().tolist()) - mean3(3.0, fails)
-    energy = found.energy(x, gamma=1.0, l0=-5.0)
+    energy = energies.energy(x, gamma=1.0, l0=-5.0)
+    assert energy.shape == (1, 1) and energy.dtype == torch.float32
     assert float(energy) == pytest.approx(5.0 + SLOPE * (risk - threshold) / found.width, abs=1e-4)
     v = validity(energy, 1.0, -5.0)
     assert float(v) < 0.1  # 3.0 lies nearer the failures than any held-out safe sample
-    assert float(validity(found.energy(torch.tensor([[0.1]]), 1.0, -5.0), 1.0, -5.0)) > 0.9
+    assert float(validity(energies.energy(torch.tensor([[0.1]]), 1.0, -5.0), 1.0, -5.0)) > 0.9
+
+
+def test_the_batched_search_matches_each_skill_searched_alone() -> None:
+    """Sets of different sizes (one smaller than the neighbour count) in one padded search."""
+    gen = torch.Generator().manual_seed(0)
+    sets = [torch.randn(n, 4, generator=gen) * 3 + 10 for n in (7, 2, 12)]
+    x = torch.randn(5, 4, generator=gen) * 3 + 10
+    found = References(sets, center=torch.full((4,), 9.0)).mean_distance(x)
+    assert found.shape == (5, 3)
+    for i, ref in enumerate(sets):
+        expected = torch.cdist(x, ref).topk(min(3, len(ref)), largest=False).values.mean(1)
+        assert torch.allclose(found[:, i], expected, atol=1e-4)
 
 
 def test_calibration_needs_failures_and_two_recorded_episodes() -> None:
-    assert calibrate(SAFE, TAGS, FAIL[:0], 0.95, SLOPE) is None
-    assert calibrate(SAFE, torch.zeros_like(TAGS), FAIL, 0.95, SLOPE) is None
-    assert calibrate(SAFE, torch.full_like(TAGS, -1), FAIL, 0.95, SLOPE) is None
+    assert calibrate(SAFE, TAGS, FAIL[:0], 0.95) is None
+    assert calibrate(SAFE, torch.zeros_like(TAGS), FAIL, 0.95) is None
+    assert calibrate(SAFE, torch.full_like(TAGS, -1), FAIL, 0.95) is None
 
 
 def test_only_skills_with_failures_leave_the_energy_model(make_policy, make_kvm_config) -> None:
@@ -64,12 +78,16 @@ def test_only_skills_with_failures_leave_the_energy_model(make_policy, make_kvm_
         plain = kvm.skill_energies(mu, 2, "energy")
         assert torch.equal(mixed[:, 1], plain[:, 1]) and not torch.equal(mixed[:, 0], plain[:, 0])
         samples, tags = kvm.safe_samples(0)
-        expected = calibrate(kvm.encoder(samples)[0], tags, kvm.encoder(fail)[0], 0.95, SLOPE)
-        assert torch.allclose(mixed[:, 0], expected.energy(mu, 1.0, -5.0))
+
+        def expected(codes: torch.Tensor) -> torch.Tensor:
+            safe_codes, fail_codes = kvm.encoder(samples)[0], kvm.encoder(fail)[0]
+            found = calibrate(safe_codes, tags, fail_codes, 0.95)
+            return NeighbourEnergy([0], [safe_codes], [fail_codes], [found], SLOPE).energy(codes, 1.0, -5.0)[:, 0]
+
+        assert torch.allclose(mixed[:, 0], expected(mu))
         v_fail = validity(kvm.skill_energies(kvm.encode(fail)[0], 2), 1.0, -5.0)[:, 0]
         assert (v_fail < 0.5).all()  # the failures themselves are invalid for their skill
         # E_c changes in place (a training step): the energy follows the new codes
         next(kvm.encoder.parameters()).add_(0.5)
         mu = kvm.encode(probe)[0]
-        expected = calibrate(kvm.encoder(samples)[0], tags, kvm.encoder(fail)[0], 0.95, SLOPE)
-        assert torch.allclose(kvm.skill_energies(mu, 2)[:, 0], expected.energy(mu, 1.0, -5.0))
+        assert torch.allclose(kvm.skill_energies(mu, 2)[:, 0], expected(mu))
