@@ -212,7 +212,7 @@ def prior_skill_scores(policy: Any, demos: list[dict[str, Any]], skill: int) -> 
             continue
         c_raw = kvm.raw_context(demo[CONTEXT], policy.encode_query(demo["task"]))
         mu, _, _ = kvm.encode(c_raw)
-        energy = kvm.skill_energies(mu, policy.n_skills)[:, skill]
+        energy = kvm.skill_energies(mu, c_raw, policy.n_skills)[:, skill]
         v_all += validity(energy, cfg.gamma, cfg.l0).tolist()
         e_all += energy.tolist()
     return v_all, e_all

@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 
 from ..envs.scenario import resolve_tasks
-from ..kvm.configuration import ONLINE_ENCODERS, RISK_MODELS, KvmConfig
+from ..kvm.configuration import NEIGHBOUR_SPACES, ONLINE_ENCODERS, RISK_MODELS, KvmConfig
 from .table import results_table
 
 COLUMNS = (
@@ -106,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
         online_encoder=args.online_encoder,
         feedback_steps=args.feedback_steps,
         risk_model=args.risk_model,
+        neighbour_space=args.neighbour_space,
     )
     print(results_table(report["scenarios"], COLUMNS))
     print(LEGEND)
@@ -148,6 +149,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=RISK_MODELS,
         default=KvmConfig.risk_model,
         help="how the KVM scores a (context, skill) pair (policy.kvm.risk_model)",
+    )
+    p.add_argument(
+        "--neighbour-space",
+        choices=NEIGHBOUR_SPACES,
+        default=KvmConfig.neighbour_space,
+        help="where the neighbour risk model searches: E_c's codes or the raw contexts (policy.kvm.neighbour_space)",
     )
     p.add_argument(
         "--seeds", type=seed_list, default=(0,), help="comma-separated seeds; each scenario is checked at each of them"

@@ -12,6 +12,7 @@ RISK_MODELS = ("energy", "bce", "neighbour")
 GAP_INITS = ("culprit", "orthogonal")
 ONLINE_ENCODERS = ("reconstruction", "joint")
 ATTRIBUTIONS = ("counterfactual", "relevance")
+NEIGHBOUR_SPACES = ("code", "context")
 
 
 @dataclass
@@ -26,6 +27,7 @@ class KvmConfig:
     # `neighbour_slope` per spread between their median and that quantile (v = sigmoid(slope) at the median)
     neighbour_quantile: float = 0.95
     neighbour_slope: float = 10.0
+    neighbour_space: str = "code"  # where the neighbours are searched: E_c's codes mu_c, or the raw context c_raw
     force_validity: float | None = None  # testing/diagnostics: every candidate's v set to this value
 
     # ------------------------------------------------------------------ context encoder E_c (App. E: MLP 2x128)
@@ -170,6 +172,8 @@ class KvmConfig:
             raise ValueError(f"`kvm.online_encoder` must be one of {ONLINE_ENCODERS}, got {self.online_encoder!r}")
         if self.attribution not in ATTRIBUTIONS:
             raise ValueError(f"`kvm.attribution` must be one of {ATTRIBUTIONS}, got {self.attribution!r}")
+        if self.neighbour_space not in NEIGHBOUR_SPACES:
+            raise ValueError(f"`kvm.neighbour_space` must be one of {NEIGHBOUR_SPACES}, got {self.neighbour_space!r}")
         positive_ints = {
             "latent_dim": self.latent_dim,
             "context_window": self.context_window,

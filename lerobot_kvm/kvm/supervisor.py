@@ -126,44 +126,48 @@ class KnowledgeValidityModule(nn.Module):
             return RiskClassifier.energy_equivalent(self.classifier(h), self.config.gamma, self.config.l0)
         return self.energy(h)
 
-    def skill_energies(self, mu: Tensor, n_skills: int, risk_model: str | None = None) -> Tensor:
-        """E [B, S] of every context with every skill begun in the pool. With the "neighbour" risk model a skill
-        with failures in memory takes its `NeighbourEnergy` instead of E_theta's."""
+    def skill_energies(self, mu: Tensor, c_raw: Tensor | None, n_skills: int, risk_model: str | None = None) -> Tensor:
+        """E [B, S] of every context (codes mu [B, L], raw contexts c_raw [B, D], which only the neighbours in
+        `kvm.neighbour_space="context"` read) with every skill begun in the pool. With the "neighbour" risk model a
+        skill with failures in memory takes its `NeighbourEnergy` instead of E_theta's."""
         model = risk_model or self.config.risk_model
         skills = torch.arange(n_skills, device=mu.device)
         energy = self.risk_energy(self.joint.all_skills(mu, skills), model)
         if model == "neighbour":
             neighbours = self.neighbour_energies(n_skills)
             if neighbours is not None:
-                energy[:, neighbours.skills] = neighbours.energy(mu, self.config.gamma, self.config.l0)
+                where = mu if self.config.neighbour_space == "code" else c_raw.to(mu)
+                energy[:, neighbours.skills] = neighbours.energy(where, self.config.gamma, self.config.l0)
         return energy
 
     @torch.no_grad()
     def neighbour_energies(self, n_skills: int) -> NeighbourEnergy | None:
-        """The nearest-neighbour energies of the skills with failures in memory on the current codes (None: no such
-        skill); rebuilt when E_c or a memory has changed since (in-place updates and loads bump the tensors'
-        version counters; a move changes the device or dtype)."""
+        """The nearest-neighbour energies of the skills with failures in memory, in `kvm.neighbour_space` (None: no
+        such skill); rebuilt when a memory (or, on codes, E_c) has changed since (in-place updates and loads bump
+        the tensors' version counters; a move changes the device or dtype)."""
+        cfg = self.config
         buffers = (self.safe_offline, self.safe_online, self.fail_online, self.fail_offline)
+        on_codes = cfg.neighbour_space == "code"
         params = list(self.encoder.parameters())
-        versions = (t._version for t in (*params, *(b.stamp for b in buffers)))
-        key = (n_skills, params[0].device, params[0].dtype, *versions)
+        watched = (*params, *(b.stamp for b in buffers)) if on_codes else tuple(b.stamp for b in buffers)
+        key = (n_skills, params[0].device, params[0].dtype, *(t._version for t in watched))
         if self._neighbours is None or self._neighbours[0] != key:
-            cfg = self.config
-            skills, safe_codes, fail_codes, calibrations = [], [], [], []
+            skills, safe_rows, fail_rows, calibrations = [], [], [], []
             for skill in range(n_skills):
                 fail, _ = _of_skill((self.fail_online, self.fail_offline), skill)
                 if not len(fail):
                     continue
                 safe, tags = self.safe_samples(skill)
-                safe, fail = self.encoder(safe)[0], self.encoder(fail)[0]
+                if on_codes:
+                    safe, fail = self.encoder(safe)[0], self.encoder(fail)[0]
                 found = calibrate(safe, tags, fail, cfg.neighbour_quantile)
                 if found is not None:
                     skills.append(skill)
-                    safe_codes.append(safe)
-                    fail_codes.append(fail)
+                    safe_rows.append(safe)
+                    fail_rows.append(fail)
                     calibrations.append(found)
             energies = (
-                NeighbourEnergy(skills, safe_codes, fail_codes, calibrations, cfg.neighbour_slope) if skills else None
+                NeighbourEnergy(skills, safe_rows, fail_rows, calibrations, cfg.neighbour_slope) if skills else None
             )
             self._neighbours = (key, energies)
         return self._neighbours[1]
@@ -171,7 +175,7 @@ class KnowledgeValidityModule(nn.Module):
     def validity_of(self, c_raw: Tensor, n_skills: int, risk_model: str | None = None) -> Tensor:
         """v [B, S] with the gate bypassed (the energy model's judgement everywhere); invalid rows -> 0."""
         mu, _, valid = self.encode(c_raw)
-        energy = self.skill_energies(mu, n_skills, risk_model)
+        energy = self.skill_energies(mu, c_raw, n_skills, risk_model)
         v = validity(energy, self.config.gamma, self.config.l0)
         ok = valid.unsqueeze(-1) & torch.isfinite(energy)
         return torch.where(ok, v, torch.zeros_like(v))
@@ -190,7 +194,7 @@ class KnowledgeValidityModule(nn.Module):
         per-skill relevance `alphas`), without fusion (a correction's absence where the gate is closed is a fusion
         weight, not a validity)."""
         mu, sigma2, valid = self.encode(c_raw)
-        energy = self.skill_energies(mu, n_skills)
+        energy = self.skill_energies(mu, c_raw, n_skills)
         v = validity(energy, self.config.gamma, self.config.l0)
         if use_gate and self.config.smart_gate:
             v = torch.where(self.gate_open(mu, sigma2).unsqueeze(-1), v, torch.ones_like(v))
@@ -278,7 +282,9 @@ class KnowledgeValidityModule(nn.Module):
             v = torch.full_like(energy, cfg.force_validity)
             invalid = ~valid.unsqueeze(-1).expand_as(v)
         else:
-            e = self.skill_energies(probe.code(hidden) if mu is None else mu, active.shape[0])
+            mu = probe.code(hidden) if mu is None else mu
+            c_raw = self.raw_context(sensed, query) if cfg.neighbour_space == "context" else None
+            e = self.skill_energies(mu, c_raw, active.shape[0])
             energy = torch.where(gate.unsqueeze(-1), e, energy)
             v = torch.where(gate.unsqueeze(-1), validity(e, cfg.gamma, cfg.l0), torch.ones_like(e))
             invalid = ~valid.unsqueeze(-1) | (gate.unsqueeze(-1) & ~torch.isfinite(e))

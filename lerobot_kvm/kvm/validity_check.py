@@ -74,7 +74,7 @@ HISTORY_LAGS = (4, 8)  # steps back: the history reference joins each context wi
 Embed = Callable[[Tensor, list[str]], Tensor]
 
 
-def _small_policy(root: Path, repo_id: str, skill_name: str, online_encoder: str, risk_model: str) -> Any:
+def _small_policy(root: Path, repo_id: str, skill_name: str, kvm_options: dict[str, Any]) -> Any:
     """A small `coda_kvm` policy for the dataset: the KVM's validity does not depend on the backbone's size."""
     from lerobot.configs.types import FeatureType
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
@@ -98,7 +98,7 @@ def _small_policy(root: Path, repo_id: str, skill_name: str, online_encoder: str
         query_separation_weight=1.0,  # as the benchmark's pools learn their skills
     )
     # forward() trains the CL core; the KVM learns through `pretrain_kvm`
-    config.kvm = replace(config.kvm, learn_offline=False, online_encoder=online_encoder, risk_model=risk_model)
+    config.kvm = replace(config.kvm, learn_offline=False, **kvm_options)
     return CodaKvmPolicy(config, dataset_meta=meta)
 
 
@@ -173,10 +173,12 @@ def check_validity(
     online_encoder: str = KvmConfig.online_encoder,
     feedback_steps: int = KvmConfig.feedback_steps,
     risk_model: str = KvmConfig.risk_model,
+    neighbour_space: str = KvmConfig.neighbour_space,
     workdir: str | Path | None = None,
 ) -> dict[str, Any]:
     """One row of the validity report for `scenario_id` (see the module docstring for the protocol);
-    `feedback_steps` is the feedback's gradient budget, `risk_model` the KVM's (`kvm.risk_model`)."""
+    `feedback_steps` is the feedback's gradient budget, `risk_model` and `neighbour_space` the KVM's
+    (`kvm.risk_model`, `kvm.neighbour_space`)."""
     info = SCENARIOS[scenario_id].info
     torch.manual_seed(seed)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
@@ -191,7 +193,8 @@ def check_validity(
             seed=seed,
         )
         record_dataset(spec, root, repo_id=repo_id, progress=False)
-        policy = _small_policy(root, repo_id, info.prior_skill, online_encoder, risk_model)
+        options = {"online_encoder": online_encoder, "risk_model": risk_model, "neighbour_space": neighbour_space}
+        policy = _small_policy(root, repo_id, info.prior_skill, options)
         frames = recorded_frames(root, repo_id, policy.config)
         labels = load_labels(root)["episodes"]
     from ..policy import make_coda_kvm_pre_post_processors

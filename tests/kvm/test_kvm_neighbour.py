@@ -71,11 +71,11 @@ def test_only_skills_with_failures_leave_the_energy_model(make_policy, make_kvm_
     probe = torch.randn(6, kvm.encoder.raw_dim, generator=gen)
     mu = kvm.encode(probe)[0]
     with torch.no_grad():
-        assert torch.equal(kvm.skill_energies(mu, 2), kvm.skill_energies(mu, 2, "energy"))  # no failure yet
+        assert torch.equal(kvm.skill_energies(mu, None, 2), kvm.skill_energies(mu, None, 2, "energy"))  # no failure yet
         fail = safe[:4] + 5.0
         kvm.add_fail(fail, torch.zeros(4, dtype=torch.long), hypothesis_id=0)
-        mixed = kvm.skill_energies(mu, 2)
-        plain = kvm.skill_energies(mu, 2, "energy")
+        mixed = kvm.skill_energies(mu, None, 2)
+        plain = kvm.skill_energies(mu, None, 2, "energy")
         assert torch.equal(mixed[:, 1], plain[:, 1]) and not torch.equal(mixed[:, 0], plain[:, 0])
         samples, tags = kvm.safe_samples(0)
 
@@ -85,9 +85,31 @@ def test_only_skills_with_failures_leave_the_energy_model(make_policy, make_kvm_
             return NeighbourEnergy([0], [safe_codes], [fail_codes], [found], SLOPE).energy(codes, 1.0, -5.0)[:, 0]
 
         assert torch.allclose(mixed[:, 0], expected(mu))
-        v_fail = validity(kvm.skill_energies(kvm.encode(fail)[0], 2), 1.0, -5.0)[:, 0]
+        v_fail = validity(kvm.skill_energies(kvm.encode(fail)[0], None, 2), 1.0, -5.0)[:, 0]
         assert (v_fail < 0.5).all()  # the failures themselves are invalid for their skill
         # E_c changes in place (a training step): the energy follows the new codes
         next(kvm.encoder.parameters()).add_(0.5)
         mu = kvm.encode(probe)[0]
-        assert torch.allclose(kvm.skill_energies(mu, 2)[:, 0], expected(mu))
+        assert torch.allclose(kvm.skill_energies(mu, None, 2)[:, 0], expected(mu))
+
+
+def test_the_context_space_searches_the_raw_contexts(make_policy, make_kvm_config) -> None:
+    policy = make_policy(kvm=make_kvm_config(risk_model="neighbour", neighbour_space="context"))
+    policy.begin_new_skill("gentle_grasp")
+    policy.eval()
+    kvm = policy.kvm
+    gen = torch.Generator().manual_seed(1)
+    safe = torch.randn(24, kvm.encoder.raw_dim, generator=gen)
+    kvm.safe_offline.add(safe, torch.ones(24, dtype=torch.long), ROUTINE, torch.arange(24) // 8)
+    fail = safe[:4] + 5.0
+    kvm.add_fail(fail, torch.ones(4, dtype=torch.long), hypothesis_id=0)
+    probe = torch.cat([safe[8:10] + 0.01, fail[:2] + 0.01])
+    found = calibrate(safe, torch.arange(24) // 8, fail, 0.95)
+    expected = NeighbourEnergy([1], [safe], [fail], [found], SLOPE).energy(probe, 1.0, -5.0)[:, 0]
+    with torch.no_grad():
+        energy = kvm.skill_energies(kvm.encode(probe)[0], probe, 2)
+        assert torch.allclose(energy[:, 1], expected)
+        v = kvm.validity_of(probe, 2)[:, 1]
+        assert (v[:2] > 0.9).all() and (v[2:] < 0.1).all()  # near the safe rows valid, near the failures not
+        next(kvm.encoder.parameters()).add_(0.5)  # E_c moves: raw contexts do not
+        assert torch.allclose(kvm.skill_energies(kvm.encode(probe)[0], probe, 2)[:, 1], expected)

@@ -310,6 +310,7 @@ def test_kvm_config_on_the_command_line_and_validation() -> None:
         ({"feedback_hard_safe_replay": -1}, "feedback_hard_safe_replay"),
         ({"neighbour_quantile": 1.2}, "neighbour_quantile"),
         ({"neighbour_slope": 0.0}, "neighbour_slope"),
+        ({"neighbour_space": "latent"}, "neighbour_space"),
     ]:
         with pytest.raises(ValueError, match=name):
             KvmConfig(**bad)
