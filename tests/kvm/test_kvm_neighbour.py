@@ -60,14 +60,21 @@ def test_calibration_needs_failures_and_two_recorded_episodes() -> None:
     assert calibrate(SAFE, torch.full_like(TAGS, -1), FAIL, 0.95) is None
 
 
-def test_only_skills_with_failures_leave_the_energy_model(make_policy, make_kvm_config) -> None:
-    policy = make_policy(kvm=make_kvm_config(risk_model="neighbour"))
+def two_skill_kvm(make_policy, make_kvm_config, skill: int, seed: int, **options):
+    """The KVM of a two-skill policy with the neighbour risk model, 24 recorded safe samples of `skill` in
+    three episodes; (kvm, safe samples, generator)."""
+    policy = make_policy(kvm=make_kvm_config(risk_model="neighbour", **options))
     policy.begin_new_skill("gentle_grasp")
     policy.eval()
     kvm = policy.kvm
-    gen = torch.Generator().manual_seed(0)
+    gen = torch.Generator().manual_seed(seed)
     safe = torch.randn(24, kvm.encoder.raw_dim, generator=gen)
-    kvm.safe_offline.add(safe, torch.zeros(24, dtype=torch.long), ROUTINE, torch.arange(24) // 8)
+    kvm.safe_offline.add(safe, torch.full((24,), skill), ROUTINE, torch.arange(24) // 8)
+    return kvm, safe, gen
+
+
+def test_only_skills_with_failures_leave_the_energy_model(make_policy, make_kvm_config) -> None:
+    kvm, safe, gen = two_skill_kvm(make_policy, make_kvm_config, skill=0, seed=0)
     probe = torch.randn(6, kvm.encoder.raw_dim, generator=gen)
     mu = kvm.encode(probe)[0]
     with torch.no_grad():
@@ -94,13 +101,7 @@ def test_only_skills_with_failures_leave_the_energy_model(make_policy, make_kvm_
 
 
 def test_the_context_space_searches_the_raw_contexts(make_policy, make_kvm_config) -> None:
-    policy = make_policy(kvm=make_kvm_config(risk_model="neighbour", neighbour_space="context"))
-    policy.begin_new_skill("gentle_grasp")
-    policy.eval()
-    kvm = policy.kvm
-    gen = torch.Generator().manual_seed(1)
-    safe = torch.randn(24, kvm.encoder.raw_dim, generator=gen)
-    kvm.safe_offline.add(safe, torch.ones(24, dtype=torch.long), ROUTINE, torch.arange(24) // 8)
+    kvm, safe, _ = two_skill_kvm(make_policy, make_kvm_config, skill=1, seed=1, neighbour_space="context")
     fail = safe[:4] + 5.0
     kvm.add_fail(fail, torch.ones(4, dtype=torch.long), hypothesis_id=0)
     probe = torch.cat([safe[8:10] + 0.01, fail[:2] + 0.01])
