@@ -1,8 +1,9 @@
-"""A skill's energy from the nearest neighbours of its failures on E_c's codes (`kvm.risk_model="neighbour"`).
+"""A skill's energy from the nearest neighbours of its failures (`kvm.risk_model="neighbour"`), on E_c's codes or
+on the raw contexts (`kvm.neighbour_space`).
 
 One failure gives the energy model a few dozen hazardous contexts, and what it learns from them ranks the next
-episode's shifted contexts poorly (kvm-check, categories A and B), while the same codes and memories rank them well
-by nearest neighbours: how much nearer a context lies to the skill's failure contexts than to its safe ones. What
+episode's shifted contexts poorly (kvm-check, categories A and B), while the same memories rank them well by
+nearest neighbours: how much nearer a context lies to the skill's failure contexts than to its safe ones. What
 that difference means is set by the skill's own safe experience: each recorded safe episode is scored as a
 held-out one (its own samples left out), and the energy crosses eq. 2's midpoint at the `quantile` of those
 scores, rising by `slope` / gamma per spread between their median and that quantile: v = sigmoid(slope) at the
@@ -10,8 +11,8 @@ median. A steeper slope keeps more of the safe side near v = 1 and takes more of
 it does not change how the skill's contexts rank.
 
 The search runs at every gate-open step, so it is a few tensor operations for all skills at once: squared
-distances as |x|^2 - 2 x.y + |y|^2 from one matrix product, every skill's references padded to the longest with
-infinitely distant rows.
+distances as |x|^2 - 2 x.y + |y|^2 from one matrix product in the references' own span, every skill's references
+padded to the longest with infinitely distant rows.
 """
 
 from dataclasses import dataclass
@@ -23,21 +24,38 @@ NEIGHBOURS = 3
 CALIBRATION_SAMPLES = 512  # held-out safe samples the threshold is taken over
 
 
+class Span:
+    """Coordinates for distances to a fixed set of reference rows: about their mean (which keeps the squared norms
+    near their spread, so float32 cancellation in |x|^2 - 2 x.y + |y|^2 stays far below it) and in an orthonormal
+    basis of their span. For y in the span, x.y needs only x's projection, and |x|^2 its full norm: raw contexts
+    (hundreds of dimensions, most of them the instruction's embedding, which takes a handful of values) are
+    searched in a few dozen."""
+
+    def __init__(self, rows: Tensor) -> None:
+        self.center = rows.mean(0)
+        _, singular, basis = torch.linalg.svd(rows - self.center, full_matrices=False)
+        keep = singular > singular[0] * max(rows.shape) * torch.finfo(rows.dtype).eps
+        self.basis = basis[keep].T.contiguous()  # [L, r]
+
+    def coords(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """(x [B, L] in the span's basis [B, r], its squared distance to the center [B])."""
+        x = x - self.center
+        return x @ self.basis, x.square().sum(-1)
+
+
 class References:
-    """The reference codes of S sets (one per skill), padded for one nearest-neighbour search of them all.
+    """The reference rows of S sets (one per skill) in one `Span`, padded for one nearest-neighbour search of
+    them all."""
 
-    Codes are compared about `center` (any fixed point: distances do not depend on it), which keeps the squared
-    norms near the codes' spread, so that float32 cancellation in |x|^2 - 2 x.y + |y|^2 stays far below it."""
-
-    def __init__(self, sets: list[Tensor], center: Tensor) -> None:
+    def __init__(self, sets: list[Tensor], span: Span) -> None:
         size = max(len(s) for s in sets)
         first = sets[0]
-        self.center = center
-        self.codes = first.new_zeros(first.shape[1], len(sets), size)  # [L, S, M]
+        self.codes = first.new_zeros(span.basis.shape[1], len(sets), size)  # [r, S, M]
         self.norms = first.new_full((len(sets), size), float("inf"))  # [S, M]: padding lies infinitely far
         for i, s in enumerate(sets):
-            self.codes[:, i, : len(s)] = (s - center).T
-            self.norms[i, : len(s)] = (s - center).square().sum(1)
+            coords, norms = span.coords(s)
+            self.codes[:, i, : len(s)] = coords.T
+            self.norms[i, : len(s)] = norms
         self.codes, self.norms = self.codes.flatten(1), self.norms.flatten()
         self.shape = (len(sets), size)
         self.k = min(NEIGHBOURS, size)
@@ -46,14 +64,13 @@ class References:
         self.short = bool(self.missing.any())
         self.counts = counts.to(first.dtype)  # [S]
 
-    def mean_distance(self, x: Tensor, exclude: Tensor | None = None) -> Tensor:
-        """[B, S] mean distance of the codes x [B, L] to their k nearest references in each set (`exclude`
-        [B, S, M] bool: references not to count; a set with fewer than k counts those it has)."""
-        x = x - self.center
-        d2 = torch.addmm(self.norms, x, self.codes, alpha=-2.0).view(len(x), *self.shape)
+    def mean_distance(self, coords: Tensor, norms: Tensor, exclude: Tensor | None = None) -> Tensor:
+        """[B, S] mean distance of rows x (`Span.coords`: [B, r] and [B]) to their k nearest references in each set
+        (`exclude` [B, S, M] bool: references not to count; a set with fewer than k counts those it has)."""
+        d2 = torch.addmm(self.norms, coords, self.codes, alpha=-2.0).view(len(coords), *self.shape)
         if exclude is not None:
             d2 = d2.masked_fill(exclude, float("inf"))
-        nearest = d2.topk(self.k, largest=False).values.add_(x.square().sum(-1).view(-1, 1, 1))
+        nearest = d2.topk(self.k, largest=False).values.add_(norms.view(-1, 1, 1))
         distances = nearest.clamp_min_(0.0).sqrt_()
         if self.short:
             return distances.masked_fill_(self.missing, 0.0).sum(-1) / self.counts
@@ -70,25 +87,26 @@ class Calibration:
 
 class NeighbourEnergy:
     """The energies of the skills with failures in memory: `skills` [S] their pool indices, with each one's safe
-    and failure codes and calibration."""
+    and failure rows (E_c's codes or raw contexts) and calibration."""
 
     def __init__(
         self, skills: list[int], safe: list[Tensor], fail: list[Tensor], calibrations: list[Calibration], slope: float
     ) -> None:
         device = safe[0].device
-        center = torch.cat(safe).mean(0)
+        self.span = Span(torch.cat([*safe, *fail]))
         self.skills = torch.tensor(skills, device=device)
-        self.safe, self.fail = References(safe, center), References(fail, center)
+        self.safe, self.fail = References(safe, self.span), References(fail, self.span)
         self.threshold = torch.tensor([c.threshold for c in calibrations], device=device)
         self.scale = slope / torch.tensor([c.width for c in calibrations], device=device)
 
-    def risk(self, codes: Tensor) -> Tensor:
-        """[B, S] how much nearer the codes [B, L] lie to each skill's failures than to its safe codes."""
-        return self.safe.mean_distance(codes) - self.fail.mean_distance(codes)
+    def risk(self, x: Tensor) -> Tensor:
+        """[B, S] how much nearer the rows x [B, L] lie to each skill's failures than to its safe rows."""
+        coords = self.span.coords(x)
+        return self.safe.mean_distance(*coords) - self.fail.mean_distance(*coords)
 
-    def energy(self, codes: Tensor, gamma: float, l0: float) -> Tensor:
+    def energy(self, x: Tensor, gamma: float, l0: float) -> Tensor:
         """[B, S] E such that v (eq. 2) is 1/2 at each threshold and sigmoid(slope) at the held-out safe median."""
-        return (self.risk(codes) - self.threshold) * (self.scale / gamma) - l0
+        return (self.risk(x) - self.threshold) * (self.scale / gamma) - l0
 
 
 @torch.no_grad()
@@ -101,8 +119,9 @@ def calibrate(safe: Tensor, tags: Tensor, fail: Tensor, quantile: float) -> Cali
     generator = torch.Generator().manual_seed(0)  # the same threshold for the same memory
     held = tagged[torch.randperm(len(tagged), generator=generator)[:CALIBRATION_SAMPLES].to(tagged.device)]
     own = (tags[held].unsqueeze(1) == tags.unsqueeze(0)) & (tags >= 0)  # [H, N]: the held-out sample's episode
-    center = safe.mean(0)
-    to_safe = References([safe], center).mean_distance(safe[held], exclude=own.unsqueeze(1))[:, 0]
-    scores = to_safe - References([fail], center).mean_distance(safe[held])[:, 0]
+    span = Span(torch.cat([safe, fail]))
+    held_coords = span.coords(safe[held])
+    to_safe = References([safe], span).mean_distance(*held_coords, exclude=own.unsqueeze(1))[:, 0]
+    scores = to_safe - References([fail], span).mean_distance(*held_coords)[:, 0]
     threshold = torch.quantile(scores, quantile)
     return Calibration(float(threshold), max(float(threshold - scores.median()), 1e-6))

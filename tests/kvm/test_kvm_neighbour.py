@@ -6,7 +6,7 @@ import torch
 
 from lerobot_kvm.kvm.energy import validity
 from lerobot_kvm.kvm.memory import ROUTINE
-from lerobot_kvm.kvm.neighbour import NeighbourEnergy, References, calibrate
+from lerobot_kvm.kvm.neighbour import NeighbourEnergy, References, Span, calibrate
 
 SLOPE = 10.0
 
@@ -42,12 +42,17 @@ def test_calibration_scores_each_recorded_episode_as_held_out() -> None:
     assert float(validity(energies.energy(torch.tensor([[0.1]]), 1.0, -5.0), 1.0, -5.0)) > 0.9
 
 
-def test_the_batched_search_matches_each_skill_searched_alone() -> None:
-    """Sets of different sizes (one smaller than the neighbour count) in one padded search."""
+@pytest.mark.parametrize("rank", [4, 2])
+def test_the_batched_search_matches_each_skill_searched_alone(rank: int) -> None:
+    """Sets of different sizes (one smaller than the neighbour count) in one padded search, in their span (all of
+    the space, or a plane of it: then x's distance to the plane counts too)."""
     gen = torch.Generator().manual_seed(0)
-    sets = [torch.randn(n, 4, generator=gen) * 3 + 10 for n in (7, 2, 12)]
+    plane = torch.linalg.qr(torch.randn(4, rank, generator=gen))[0]
+    sets = [torch.randn(n, rank, generator=gen) @ plane.T * 3 + 10 for n in (7, 2, 12)]
     x = torch.randn(5, 4, generator=gen) * 3 + 10
-    found = References(sets, center=torch.full((4,), 9.0)).mean_distance(x)
+    span = Span(torch.cat(sets))
+    assert span.basis.shape == (4, rank)
+    found = References(sets, span).mean_distance(*span.coords(x))
     assert found.shape == (5, 3)
     for i, ref in enumerate(sets):
         expected = torch.cdist(x, ref).topk(min(3, len(ref)), largest=False).values.mean(1)
