@@ -40,7 +40,7 @@ class Span:
     def coords(self, x: Tensor) -> tuple[Tensor, Tensor]:
         """(x [B, L] in the span's basis [B, r], its squared distance to the center [B])."""
         x = x - self.center
-        return x @ self.basis, x.square().sum(-1)
+        return x @ self.basis, torch.linalg.vecdot(x, x)
 
 
 class References:
@@ -95,18 +95,28 @@ class NeighbourEnergy:
         device = safe[0].device
         self.span = Span(torch.cat([*safe, *fail]))
         self.skills = torch.tensor(skills, device=device)
-        self.safe, self.fail = References(safe, self.span), References(fail, self.span)
-        self.threshold = torch.tensor([c.threshold for c in calibrations], device=device)
-        self.scale = slope / torch.tensor([c.width for c in calibrations], device=device)
+        self.references = References([*safe, *fail], self.span)  # safe sets, then failure sets: one search
+        threshold = torch.tensor([c.threshold for c in calibrations], device=device)
+        scale = slope / torch.tensor([c.width for c in calibrations], device=device)
+        # E = (risk - threshold) * scale / gamma - l0 with risk = safe distance - failure distance: one affine map
+        # of the 2S distances, W [2S, S] and b [S] (divided by gamma and shifted by l0 on use)
+        eye = torch.eye(len(skills), device=device)
+        self.weight = torch.cat([eye, -eye]) * scale
+        self.bias = -threshold * scale
+        self._affine: tuple[float, float, Tensor, Tensor] | None = None
 
     def risk(self, x: Tensor) -> Tensor:
         """[B, S] how much nearer the rows x [B, L] lie to each skill's failures than to its safe rows."""
-        coords = self.span.coords(x)
-        return self.safe.mean_distance(*coords) - self.fail.mean_distance(*coords)
+        distances = self.references.mean_distance(*self.span.coords(x))
+        n = len(self.skills)
+        return distances[:, :n] - distances[:, n:]
 
     def energy(self, x: Tensor, gamma: float, l0: float) -> Tensor:
         """[B, S] E such that v (eq. 2) is 1/2 at each threshold and sigmoid(slope) at the held-out safe median."""
-        return (self.risk(x) - self.threshold) * (self.scale / gamma) - l0
+        if self._affine is None or self._affine[:2] != (gamma, l0):
+            self._affine = (gamma, l0, self.weight / gamma, self.bias / gamma - l0)
+        _, _, weight, bias = self._affine
+        return torch.addmm(bias, self.references.mean_distance(*self.span.coords(x)), weight)
 
 
 @torch.no_grad()

@@ -68,6 +68,7 @@ class KnowledgeValidityModule(nn.Module):
         self.gate_override: str | None = None
         self._sigma_history: deque[Tensor] = deque(maxlen=config.context_window)
         self._neighbours: tuple[tuple, NeighbourEnergy | None] | None = None  # cache of `neighbour_energies`
+        self._encoder_params = tuple(self.encoder.parameters())  # loads and moves keep the Parameter objects
 
     # ----------------------------------------------------------------- runtime
     def train(self, mode: bool = True) -> "KnowledgeValidityModule":
@@ -140,37 +141,39 @@ class KnowledgeValidityModule(nn.Module):
                 energy[:, neighbours.skills] = neighbours.energy(where, self.config.gamma, self.config.l0)
         return energy
 
-    @torch.no_grad()
     def neighbour_energies(self, n_skills: int) -> NeighbourEnergy | None:
         """The nearest-neighbour energies of the skills with failures in memory, in `kvm.neighbour_space` (None: no
         such skill); rebuilt when a memory (or, on codes, E_c) has changed since (in-place updates and loads bump
-        the tensors' version counters; a move changes the device or dtype)."""
+        the tensors' version counters; a move changes the device or dtype). The test runs at every gate-open step,
+        so it reads E_c's parameters from a tuple kept since construction."""
         cfg = self.config
-        buffers = (self.safe_offline, self.safe_online, self.fail_online, self.fail_offline)
         on_codes = cfg.neighbour_space == "code"
-        params = list(self.encoder.parameters())
-        watched = (*params, *(b.stamp for b in buffers)) if on_codes else tuple(b.stamp for b in buffers)
-        key = (n_skills, params[0].device, params[0].dtype, *(t._version for t in watched))
+        stamps = (b.stamp for b in (self.safe_offline, self.safe_online, self.fail_online, self.fail_offline))
+        watched = (*self._encoder_params, *stamps) if on_codes else stamps  # buffers: a move replaces them
+        first = self._encoder_params[0]
+        key = (n_skills, cfg.neighbour_space, first.device, first.dtype, *(t._version for t in watched))
         if self._neighbours is None or self._neighbours[0] != key:
-            skills, safe_rows, fail_rows, calibrations = [], [], [], []
-            for skill in range(n_skills):
-                fail, _ = _of_skill((self.fail_online, self.fail_offline), skill)
-                if not len(fail):
-                    continue
-                safe, tags = self.safe_samples(skill)
-                if on_codes:
-                    safe, fail = self.encoder(safe)[0], self.encoder(fail)[0]
-                found = calibrate(safe, tags, fail, cfg.neighbour_quantile)
-                if found is not None:
-                    skills.append(skill)
-                    safe_rows.append(safe)
-                    fail_rows.append(fail)
-                    calibrations.append(found)
-            energies = (
-                NeighbourEnergy(skills, safe_rows, fail_rows, calibrations, cfg.neighbour_slope) if skills else None
-            )
-            self._neighbours = (key, energies)
+            self._neighbours = (key, self._build_neighbours(n_skills, on_codes))
         return self._neighbours[1]
+
+    @torch.no_grad()
+    def _build_neighbours(self, n_skills: int, on_codes: bool) -> NeighbourEnergy | None:
+        cfg = self.config
+        skills, safe_rows, fail_rows, calibrations = [], [], [], []
+        for skill in range(n_skills):
+            fail, _ = _of_skill((self.fail_online, self.fail_offline), skill)
+            if not len(fail):
+                continue
+            safe, tags = self.safe_samples(skill)
+            if on_codes:
+                safe, fail = self.encoder(safe)[0], self.encoder(fail)[0]
+            found = calibrate(safe, tags, fail, cfg.neighbour_quantile)
+            if found is not None:
+                skills.append(skill)
+                safe_rows.append(safe)
+                fail_rows.append(fail)
+                calibrations.append(found)
+        return NeighbourEnergy(skills, safe_rows, fail_rows, calibrations, cfg.neighbour_slope) if skills else None
 
     def validity_of(self, c_raw: Tensor, n_skills: int, risk_model: str | None = None) -> Tensor:
         """v [B, S] with the gate bypassed (the energy model's judgement everywhere); invalid rows -> 0."""
