@@ -50,13 +50,13 @@ class References:
     def __init__(self, sets: list[Tensor], span: Span) -> None:
         size = max(len(s) for s in sets)
         first = sets[0]
-        self.codes = first.new_zeros(span.basis.shape[1], len(sets), size)  # [r, S, M]
+        self.coords = first.new_zeros(span.basis.shape[1], len(sets), size)  # [r, S, M]
         self.norms = first.new_full((len(sets), size), float("inf"))  # [S, M]: padding lies infinitely far
         for i, s in enumerate(sets):
             coords, norms = span.coords(s)
-            self.codes[:, i, : len(s)] = coords.T
+            self.coords[:, i, : len(s)] = coords.T
             self.norms[i, : len(s)] = norms
-        self.codes, self.norms = self.codes.flatten(1), self.norms.flatten()
+        self.coords, self.norms = self.coords.flatten(1), self.norms.flatten()
         self.shape = (len(sets), size)
         self.k = min(NEIGHBOURS, size)
         counts = torch.tensor([min(len(s), self.k) for s in sets], device=first.device)
@@ -67,7 +67,7 @@ class References:
     def mean_distance(self, coords: Tensor, norms: Tensor, exclude: Tensor | None = None) -> Tensor:
         """[B, S] mean distance of rows x (`Span.coords`: [B, r] and [B]) to their k nearest references in each set
         (`exclude` [B, S, M] bool: references not to count; a set with fewer than k counts those it has)."""
-        d2 = torch.addmm(self.norms, coords, self.codes, alpha=-2.0).view(len(coords), *self.shape)
+        d2 = torch.addmm(self.norms, coords, self.coords, alpha=-2.0).view(len(coords), *self.shape)
         if exclude is not None:
             d2 = d2.masked_fill(exclude, float("inf"))
         nearest = d2.topk(self.k, largest=False).values.add_(norms.view(-1, 1, 1))
@@ -105,12 +105,6 @@ class NeighbourEnergy:
         self.bias = -threshold * scale
         self._affine: tuple[float, float, Tensor, Tensor] | None = None
 
-    def risk(self, x: Tensor) -> Tensor:
-        """[B, S] how much nearer the rows x [B, L] lie to each skill's failures than to its safe rows."""
-        distances = self.references.mean_distance(*self.span.coords(x))
-        n = len(self.skills)
-        return distances[:, :n] - distances[:, n:]
-
     def energy(self, x: Tensor, gamma: float, l0: float) -> Tensor:
         """[B, S] E such that v (eq. 2) is 1/2 at each threshold and sigmoid(slope) at the held-out safe median."""
         if self._affine is None or self._affine[:2] != (gamma, l0):
@@ -121,8 +115,8 @@ class NeighbourEnergy:
 
 @torch.no_grad()
 def calibrate(safe: Tensor, tags: Tensor, fail: Tensor, quantile: float) -> Calibration | None:
-    """The calibration of a skill with safe codes [N, L] (tags [N]: the recorded episode of each, -1 untagged) and
-    fail codes [M, L]; None without failures or without two recorded episodes to hold one out against the others."""
+    """The calibration of a skill with safe rows [N, L] (tags [N]: the recorded episode of each, -1 untagged) and
+    failure rows [M, L]; None without failures or without two recorded episodes to hold one out against the others."""
     tagged = torch.nonzero(tags >= 0).flatten()
     if not len(fail) or len(torch.unique(tags[tagged])) < 2:
         return None
