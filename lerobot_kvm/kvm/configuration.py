@@ -22,12 +22,13 @@ class KvmConfig:
     smart_gate: bool = True  # False ("w/o smart gate"): full assessment at every step
     risk_model: str = "energy"  # "energy" (E_theta, eq. 2) or "bce" (MLP classifier trained with BCE) ...
     # ... or "neighbour": E_theta, except for a skill with failures in memory, whose energy comes from its failure
-    # and safe contexts' nearest neighbours on E_c's codes, crossing eq. 2's midpoint at the `neighbour_quantile` of
-    # its own recorded safe episodes scored as held-out ones (`kvm.neighbour`), with gamma * E rising by
-    # `neighbour_slope` per spread between their median and that quantile (v = sigmoid(slope) at the median)
+    # and safe contexts' nearest neighbours (in `neighbour_space`), crossing eq. 2's midpoint at the
+    # `neighbour_quantile` of its own recorded safe episodes scored as held-out ones (`kvm.neighbour`), with
+    # gamma * E rising by `neighbour_slope` per spread between their median and that quantile (v = sigmoid(slope)
+    # at the median)
     neighbour_quantile: float = 0.95
     neighbour_slope: float = 10.0
-    neighbour_space: str = "code"  # where the neighbours are searched: E_c's codes mu_c, or the raw context c_raw
+    neighbour_space: str = "code"  # where the neighbours are searched: E_c's codes mu_c ("code") or c_raw ("context")
     force_validity: float | None = None  # testing/diagnostics: every candidate's v set to this value
 
     # ------------------------------------------------------------------ context encoder E_c (App. E: MLP 2x128)
