@@ -125,6 +125,16 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def kvm_choice(p: argparse.ArgumentParser, name: str, choices: tuple[str, ...], help_text: str) -> None:
+    """`--<name>` for the KVM option `name`: its choices, its default from `KvmConfig`."""
+    p.add_argument(
+        "--" + name.replace("_", "-"),
+        choices=choices,
+        default=getattr(KvmConfig, name),
+        help=f"{help_text} (policy.kvm.{name})",
+    )
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("kvm-check", help="KVM validity per scenario after one failure and its feedback")
     p.add_argument("--tasks", default="all", help="scenario ids, categories (A,B,C) or 'all', comma separated")
@@ -132,30 +142,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--held-out", type=int, default=4, help="held-out seeds per (variant, skill)")
     p.add_argument("--offline-steps", type=int, default=300, help="training steps on the prior skill (core, KVM)")
     p.add_argument("--new-skill-steps", type=int, default=200, help="training steps on the safe skill (core, KVM)")
-    p.add_argument(
-        "--online-encoder",
-        choices=ONLINE_ENCODERS,
-        default=KvmConfig.online_encoder,
-        help="what E_c learns from the feedback (policy.kvm.online_encoder)",
-    )
+    kvm_choice(p, "online_encoder", ONLINE_ENCODERS, "what E_c learns from the feedback")
     p.add_argument(
         "--feedback-steps",
         type=int,
         default=KvmConfig.feedback_steps,
         help="gradient steps of the one feedback (policy.kvm.feedback_steps; the benchmark gives every method 100)",
     )
-    p.add_argument(
-        "--risk-model",
-        choices=RISK_MODELS,
-        default=KvmConfig.risk_model,
-        help="how the KVM scores a (context, skill) pair (policy.kvm.risk_model)",
-    )
-    p.add_argument(
-        "--neighbour-space",
-        choices=NEIGHBOUR_SPACES,
-        default=KvmConfig.neighbour_space,
-        help="where the neighbour risk model searches: E_c's codes or the raw contexts (policy.kvm.neighbour_space)",
-    )
+    kvm_choice(p, "risk_model", RISK_MODELS, "how the KVM scores a (context, skill) pair")
+    kvm_choice(p, "neighbour_space", NEIGHBOUR_SPACES, "where the neighbour risk model searches: codes or raw contexts")
     p.add_argument(
         "--seeds", type=seed_list, default=(0,), help="comma-separated seeds; each scenario is checked at each of them"
     )

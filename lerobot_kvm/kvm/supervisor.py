@@ -286,7 +286,8 @@ class KnowledgeValidityModule(nn.Module):
             invalid = ~valid.unsqueeze(-1).expand_as(v)
         else:
             mu = probe.code(hidden) if mu is None else mu
-            c_raw = self.raw_context(sensed, query) if cfg.neighbour_space == "context" else None
+            on_contexts = cfg.risk_model == "neighbour" and cfg.neighbour_space == "context"
+            c_raw = self.raw_context(sensed, query) if on_contexts else None
             e = self.skill_energies(mu, c_raw, active.shape[0])
             energy = torch.where(gate.unsqueeze(-1), e, energy)
             v = torch.where(gate.unsqueeze(-1), validity(e, cfg.gamma, cfg.l0), torch.ones_like(e))
@@ -563,12 +564,12 @@ class KnowledgeValidityModule(nn.Module):
         return {k: float(v.detach()) for k, v in metrics.items()}
 
     # ----------------------------------------------------------------- helpers for the online API
-    @torch.no_grad()
     def safe_samples(self, skill: int) -> tuple[Tensor, Tensor]:
         """`skill`'s safe memory (recorded and met online) [N, D] and the recorded episode of each sample [N] (the
         `episodes` of `offline_step`; -1: untagged)."""
         return _of_skill((self.safe_offline, self.safe_online), skill)
 
+    @torch.no_grad()
     def safe_experience(self, skill: int) -> SafeExperience:
         """`skill`'s safe memory with the spread of its recorded episodes."""
         samples, tags = self.safe_samples(skill)
