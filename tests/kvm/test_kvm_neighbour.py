@@ -79,7 +79,7 @@ def two_skill_kvm(make_policy, make_kvm_config, skill: int, seed: int, **options
 
 
 def test_only_skills_with_failures_leave_the_energy_model(make_policy, make_kvm_config) -> None:
-    kvm, safe, gen = two_skill_kvm(make_policy, make_kvm_config, skill=0, seed=0)
+    kvm, safe, gen = two_skill_kvm(make_policy, make_kvm_config, skill=0, seed=0, neighbour_space="code")
     probe = torch.randn(6, kvm.encoder.raw_dim, generator=gen)
     mu = kvm.encode(probe)[0]
     with torch.no_grad():
