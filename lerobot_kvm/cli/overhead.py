@@ -28,6 +28,30 @@ def observation_inputs(policy, policy_path: Path, task: str, variant: str, seed:
     return {k: v.to(policy.config.device) if hasattr(v, "to") else v for k, v in batch.items()}, "random inputs"
 
 
+def give_failures(policy, policy_path: Path, scenarios: list[str], seed: int) -> list[dict]:
+    """One attempt of the policy on each scenario's shifted variant, its outcome given back through the feedback
+    API, as in deployment: a failed attempt puts its contexts in the KVM's failure memory, so that the gate-open
+    step is timed with the nearest-neighbour risk model searching them (a skill without failures has none)."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    from ..envs.env import KvmObsolescenceEnv
+    from ..kvm.evaluation import run_attempt
+
+    if not any(policy_path.glob("policy_preprocessor*.json")):
+        raise FileNotFoundError(f"--failures runs the policy in the scenarios: {policy_path} has no processors")
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(policy_path))
+    given = []
+    for scenario in scenarios:
+        env = KvmObsolescenceEnv(task=scenario, variant="shifted")
+        try:
+            attempt = run_attempt(policy, env, pre, post, seed=seed)
+        finally:
+            env.close()
+        policy.kvm_feedback(attempt["outcome"], attempt["trace"])
+        given.append({"scenario": scenario, "outcome": attempt["outcome"], "steps": attempt["steps"]})
+    return given
+
+
 def run(args: argparse.Namespace) -> int:
     import torch
 
@@ -41,9 +65,10 @@ def run(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"{path} is not a coda_kvm checkpoint (no model.safetensors)")
     kwargs = {"device": args.device} if args.device else {}
     policy = CodaKvmPolicy.from_pretrained(path, **kwargs)
+    failures = give_failures(policy, path, args.failures.split(","), args.seed) if args.failures else []
     batch, source = observation_inputs(policy, path, args.task, args.variant, args.seed)
     result = measure_overhead(policy, batch, steps=args.steps, warmup=args.warmup, block=args.block)
-    result.update(policy_path=str(path), inputs=source)
+    result.update(policy_path=str(path), inputs=source, feedback=failures, failure_memory=len(policy.kvm.fail_online))
     text = json.dumps(result, indent=2)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
@@ -62,6 +87,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--task", default="egg_vs_stone", help="scenario providing the observation")
     p.add_argument("--variant", default="prior")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--failures",
+        default="",
+        help="comma-separated scenarios: before timing, one attempt on each one's shifted variant with its outcome "
+        "given as feedback (puts failures in the KVM's memory, as after deployment)",
+    )
     p.add_argument("--device", help="override the checkpoint's device (e.g. cpu)")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     p.set_defaults(func=run)

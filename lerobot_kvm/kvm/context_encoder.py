@@ -122,14 +122,14 @@ class GateProbe:
         first = enc[0].weight.detach()
         self.sensed_first = first[:, :sensed].T.contiguous()  # [C, H]: the right operand of addmm
         self.query_first = (first[:, sensed:] * encoder.query_scale, enc[0].bias.detach().clone())
-        joined = (dec[0].weight @ enc[-1].weight, dec[0].weight @ enc[-1].bias + dec[0].bias)
-        self.layers = [
-            *[(m.weight.detach().clone(), m.bias.detach().clone()) for m in enc[1:-1]],
+        joined = (dec[0].bias + dec[0].weight @ enc[-1].bias, (dec[0].weight @ enc[-1].weight).T.contiguous())
+        self.layers = [  # (bias, weight^T): the operands of addmm
+            *[(m.bias.detach().clone(), m.weight.detach().T.contiguous()) for m in enc[1:-1]],
             joined,
-            *[(m.weight.detach().clone(), m.bias.detach().clone()) for m in dec[1:-1]],
+            *[(m.bias.detach().clone(), m.weight.detach().T.contiguous()) for m in dec[1:-1]],
         ]
         self.code_after = len(enc) - 2  # the layer (0: the first) whose output is the encoder's last hidden layer
-        self.code_layer = (enc[-1].weight.detach().clone(), enc[-1].bias.detach().clone())
+        self.code_layer = (enc[-1].bias.detach().clone(), enc[-1].weight.detach().T.contiguous())
         root = dim_weights.sqrt()
         out = dec[-1].weight * root.unsqueeze(-1)  # [raw_dim, H]
         bias = dec[-1].bias * root
@@ -163,9 +163,9 @@ class GateProbe:
         """(sigma_c^2 [B], the encoder's last hidden layer [B, H]) of the normalized sensed context [B, C] and the
         query embedding [B, D_q] (unscaled, as `ContextEncoder.raw_context` takes it)."""
         first, offset = self._terms(query, sensed)
-        h = hidden = torch.relu(torch.addmm(first, sensed, self.sensed_first))
-        for i, (weight, bias) in enumerate(self.layers, 1):
-            h = torch.relu(F.linear(h, weight, bias))
+        h = hidden = torch.addmm(first, sensed, self.sensed_first).relu_()
+        for i, (bias, weight) in enumerate(self.layers, 1):
+            h = torch.addmm(bias, h, weight).relu_()
             if i == self.code_after:
                 hidden = h
         residual = torch.addmm(offset, h, self.out_weight)
@@ -174,4 +174,4 @@ class GateProbe:
 
     def code(self, hidden: Tensor) -> Tensor:
         """mu_c [B, latent_dim] from the encoder's last hidden layer."""
-        return F.linear(hidden, *self.code_layer)
+        return torch.addmm(self.code_layer[0], hidden, self.code_layer[1])

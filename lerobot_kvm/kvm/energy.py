@@ -12,6 +12,8 @@ on safe samples without limit, so an unbounded energy would run to -inf.
 
 The "w/o energy model" ablation is `RiskClassifier`: the same MLP giving a failure logit l trained with BCE.
 Its energy-equivalent is E = l / gamma - l0', so that eq. 2 gives v = 1 - sigmoid(l) = P(safe).
+
+`SkillScorer` is either network over the joint feature rearranged for the gate-open control step.
 """
 
 import torch
@@ -22,8 +24,9 @@ from .context_encoder import mlp
 
 
 def validity(energy: Tensor, gamma: float, l0: float) -> Tensor:
-    """Eq. 2: v = 1 / (1 + exp(-gamma * (-E - l0')))."""
-    return torch.sigmoid(gamma * (-energy - l0))
+    """Eq. 2: v = 1 / (1 + exp(-gamma * (-E - l0'))), written -gamma * (E + l0') (the same floats, one operation
+    fewer: it runs at every gate-open step)."""
+    return torch.sigmoid((energy + l0) * -gamma)
 
 
 class JointFeature(nn.Module):
@@ -76,3 +79,42 @@ class RiskClassifier(nn.Module):
     @staticmethod
     def energy_equivalent(logit: Tensor, gamma: float, l0: float) -> Tensor:
         return logit / gamma - l0
+
+
+class SkillScorer:
+    """E_theta (or the classifier's logit) of contexts with every skill in few tensor operations: a snapshot of the
+    joint feature and one network, for the gate-open control step (no gradients).
+
+    At these sizes a step's cost is its number of tensor operations, and the joint feature with every skill
+    repeats per skill what is the same for all of them. The skill half of the join is constant between weight
+    updates, and the network's first layer is linear: with c the context's unit vector and s_i skill i's,
+    W1 normalize(c + s_i) = (W1 c + W1 s_i) / |c + s_i| and |c + s_i|^2 = 1 + 2 c.s_i + |s_i|^2, so the first layer
+    takes one product for the context and a stored W1 s_i per skill. Rebuild it whenever the weights change.
+    """
+
+    @torch.no_grad()
+    def __init__(self, joint: JointFeature, net: nn.Sequential, n_skills: int, bound: float | None) -> None:
+        proj = joint.context_proj
+        units = joint._skill(torch.arange(n_skills, device=proj.weight.device))  # [S, F]
+        layers = [(m.bias.detach(), m.weight.detach().T) for m in net if isinstance(m, nn.Linear)]
+        if bound is not None:  # E = bound * tanh(raw / bound): the division rides in the output layer
+            layers[-1] = (layers[-1][0] / bound, layers[-1][1] / bound)
+        # (bias, weight^T), the operands of addmm; copies, so that the snapshot never shares the weights' memory
+        self.first, *self.layers = [(b.clone().contiguous(), w.clone().contiguous()) for b, w in layers]
+        self.context = (proj.bias.detach().clone(), proj.weight.detach().T.contiguous())
+        self.skill_first = units @ self.first[1]  # [S, H]: W1 s_i
+        self.skill_units = units.T.contiguous()  # [F, S]
+        self.skill_norms = units.square().sum(-1) + 1.0  # [S]: |c|^2 + |s_i|^2, c a unit vector
+        self.bound = bound
+
+    def __call__(self, mu: Tensor) -> Tensor:
+        """[B, S] scores of the codes mu [B, L] with every skill (the network's output on `JointFeature.all_skills`)."""
+        c = F.normalize(torch.addmm(self.context[0], mu, self.context[1]), dim=-1)  # [B, F]
+        squares = torch.addmm(self.skill_norms, c, self.skill_units, alpha=2.0)  # |c + s_i|^2
+        inv = squares.clamp_min_(1e-24).rsqrt_()  # F.normalize's floor (1e-12) on the norm
+        pre = (c @ self.first[1]).unsqueeze(1) + self.skill_first  # [B, S, H]
+        h = torch.addcmul(self.first[0], pre, inv.unsqueeze(-1)).flatten(0, 1)
+        for bias, weight in self.layers:
+            h = torch.addmm(bias, h.relu_(), weight)
+        raw = h.view(len(mu), -1)
+        return raw if self.bound is None else raw.tanh_().mul_(self.bound)

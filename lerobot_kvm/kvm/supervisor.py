@@ -18,7 +18,7 @@ from torch import Tensor, nn
 from .attribution import HypothesisTable
 from .configuration import KvmConfig
 from .context_encoder import ContextEncoder
-from .energy import EnergyModel, JointFeature, RiskClassifier, validity
+from .energy import EnergyModel, JointFeature, RiskClassifier, SkillScorer, validity
 from .experience import SafeExperience
 from .fusion import correction_validity, fuse_weights
 from .gate import SmartGate
@@ -69,6 +69,12 @@ class KnowledgeValidityModule(nn.Module):
         self._sigma_history: deque[Tensor] = deque(maxlen=config.context_window)
         self._neighbours: tuple[tuple, NeighbourEnergy | None] | None = None  # cache of `neighbour_energies`
         self._encoder_params = tuple(self.encoder.parameters())  # loads and moves keep the Parameter objects
+        joint = tuple(self.joint.parameters())  # what `scorer` snapshots: the joint feature and one network
+        self._scored_params = {
+            False: (*joint, *self.energy.parameters()),
+            True: (*joint, *self.classifier.parameters()),
+        }
+        self._scorers: dict[bool, tuple[tuple, SkillScorer]] = {}  # cache of `scorer`
 
     # ----------------------------------------------------------------- runtime
     def train(self, mode: bool = True) -> "KnowledgeValidityModule":
@@ -131,15 +137,34 @@ class KnowledgeValidityModule(nn.Module):
         """E [B, S] of every context (codes mu [B, L], raw contexts c_raw [B, D], which only the neighbours in
         `kvm.neighbour_space="context"` read) with every skill begun in the pool. With the "neighbour" risk model a
         skill with failures in memory takes its `NeighbourEnergy` instead of E_theta's."""
-        model = risk_model or self.config.risk_model
-        skills = torch.arange(n_skills, device=mu.device)
-        energy = self.risk_energy(self.joint.all_skills(mu, skills), model)
+        cfg = self.config
+        model = risk_model or cfg.risk_model
+        if torch.is_grad_enabled():  # learning: through the modules
+            energy = self.risk_energy(self.joint.all_skills(mu, torch.arange(n_skills, device=mu.device)), model)
+        elif model == "bce":
+            energy = RiskClassifier.energy_equivalent(self.scorer(n_skills, True)(mu), cfg.gamma, cfg.l0)
+        else:
+            energy = self.scorer(n_skills, False)(mu)
         if model == "neighbour":
             neighbours = self.neighbour_energies(n_skills)
             if neighbours is not None:
-                where = mu if self.config.neighbour_space == "code" else c_raw.to(mu)
-                energy[:, neighbours.skills] = neighbours.energy(where, self.config.gamma, self.config.l0)
+                where = mu if cfg.neighbour_space == "code" else c_raw.to(mu)
+                energy[:, neighbours.skills] = neighbours.energy(where, cfg.gamma, cfg.l0)
         return energy
+
+    def scorer(self, n_skills: int, classifier: bool) -> SkillScorer:
+        """E_theta's (or, `classifier`, the BCE classifier's) `SkillScorer` over the first n_skills skills, rebuilt
+        when a weight has changed since (optimizer steps and loads bump the tensors' version counters)."""
+        net = self.classifier.net if classifier else self.energy.net
+        params = self._scored_params[classifier]
+        first = params[0]
+        key = (n_skills, first.device, first.dtype, *(t._version for t in params))
+        cached = self._scorers.get(classifier)
+        if cached is None or cached[0] != key:
+            bound = None if classifier else self.energy.energy_max
+            with torch.inference_mode(False):  # a cache built under inference mode must serve outside it too
+                cached = self._scorers[classifier] = (key, SkillScorer(self.joint, net, n_skills, bound))
+        return cached[1]
 
     def neighbour_energies(self, n_skills: int) -> NeighbourEnergy | None:
         """The nearest-neighbour energies of the skills with failures in memory, in `kvm.neighbour_space` (None: no
@@ -271,7 +296,8 @@ class KnowledgeValidityModule(nn.Module):
             tau_v=cfg.tau_v,
             candidate_min_alpha=cfg.candidate_min_alpha,
         )
-        if cfg.force_validity is None and (gate is None or not bool(gate.any())):  # closed: v = 1 for every skill
+        anywhere, everywhere = _spread(gate)
+        if cfg.force_validity is None and not anywhere:  # closed: v = 1 for every skill
             if all_active and corrections is None:
                 return None, KvmStepTelemetry(alpha=alphas, **common)  # the plain CODA prompt
             v = active.to(sigma2.dtype).expand(sigma2.shape[0], -1)
@@ -279,21 +305,25 @@ class KnowledgeValidityModule(nn.Module):
             return weights, KvmStepTelemetry(alpha=alphas, validity=v, skill_weight=weights, **common)
         if gate is None:
             gate = common["gate"] = torch.zeros_like(sigma2, dtype=torch.bool)
-        valid = torch.isfinite(sigma2)
-        energy = sigma2.new_full((sigma2.shape[0], active.shape[0]), float("nan"))
+        valid = None if _at_most(sigma2, _FINITE_MAX) else torch.isfinite(sigma2).unsqueeze(-1)  # None: all rows
         if cfg.force_validity is not None:
+            energy = sigma2.new_full((sigma2.shape[0], active.shape[0]), float("nan"))
             v = torch.full_like(energy, cfg.force_validity)
-            invalid = ~valid.unsqueeze(-1).expand_as(v)
+            invalid = torch.zeros_like(v, dtype=torch.bool) if valid is None else ~valid.expand_as(v)
         else:
             mu = probe.code(hidden) if mu is None else mu
             on_contexts = cfg.risk_model == "neighbour" and cfg.neighbour_space == "context"
             c_raw = self.raw_context(sensed, query) if on_contexts else None
-            e = self.skill_energies(mu, c_raw, active.shape[0])
-            energy = torch.where(gate.unsqueeze(-1), e, energy)
-            v = torch.where(gate.unsqueeze(-1), validity(e, cfg.gamma, cfg.l0), torch.ones_like(e))
-            invalid = ~valid.unsqueeze(-1) | (gate.unsqueeze(-1) & ~torch.isfinite(e))
-        off = invalid | ~active.unsqueeze(0)
-        v = torch.where(off, torch.zeros_like(v), v)
+            energy = self.skill_energies(mu, c_raw, active.shape[0])
+            v = validity(energy, cfg.gamma, cfg.l0)
+            invalid = ~torch.isfinite(energy) if valid is None else ~(valid & torch.isfinite(energy))
+            if not everywhere:  # rows with the gate closed (their sigma^2 is finite): not assessed, E NaN, v = 1
+                assessed = gate.unsqueeze(-1)
+                energy = energy.masked_fill(~assessed, float("nan"))
+                v = v.masked_fill(~assessed, 1.0)
+                invalid = invalid & assessed
+        off = invalid if all_active else invalid | ~active.unsqueeze(0)
+        v = v.masked_fill(off, 0.0)
         if corrections is not None:
             alphas = alphas() if callable(alphas) else alphas
             v = torch.where(off, 0.0, correction_validity(v, corrections, alphas, cfg.tau_high, active))
@@ -614,6 +644,16 @@ def _of_skill(buffers: tuple[SampleBuffer, ...], skill: int) -> tuple[Tensor, Te
         rows.append(buffer.data[i][mine])
         tags.append(buffer.tag[i][mine])
     return torch.cat(rows), torch.cat(tags)
+
+
+def _spread(gate: Tensor | None) -> tuple[bool, bool]:
+    """(open anywhere, open everywhere) of a gate mask (None: closed everywhere); one operation for one row."""
+    if gate is None:
+        return False, False
+    if gate.numel() == 1:
+        opened = bool(gate)
+        return opened, opened
+    return bool(gate.any()), bool(gate.all())
 
 
 def _at_most(values: Tensor, bound: float) -> bool:

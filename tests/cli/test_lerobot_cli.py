@@ -132,3 +132,17 @@ def test_train_from_a_checkpoint_with_a_new_skill_name_grows_the_pool(trained):
     old, new = before.pool.tasks[0].state_dict(), after.pool.tasks[0].state_dict()
     assert all(torch.equal(v, new[k]) for k, v in old.items())
     assert torch.equal(before.query_fingerprint, after.query_fingerprint)
+
+
+def test_overhead_after_failures_given_as_feedback(trained):
+    """`lerobot-kvm overhead --failures`: attempts on shifted variants, their outcomes fed back, then the timing."""
+    ckpt = trained / "train" / "checkpoints" / "last" / "pretrained_model"
+    out = trained / "overhead.json"
+    args = ["--steps=2", "--block=1", "--warmup=1", "--failures=egg_vs_stone", f"--json={out}"]
+    run([str(BIN / "lerobot-kvm"), "overhead", f"--policy-path={ckpt}", *args], trained)
+    result = json.loads(out.read_text())
+    [given] = result["feedback"]
+    assert given["scenario"] == "egg_vs_stone" and given["steps"] > 0
+    assert given["outcome"] in ("success", "failure", "catastrophe")
+    assert (result["failure_memory"] > 0) == (given["outcome"] != "success")
+    assert result["calls_per_mode"] == 2 and result["paired_ratio_gate_open"] > 0
