@@ -519,10 +519,10 @@ class KnowledgeValidityModule(nn.Module):
         so what was safe stays safe; cross-skill and synthetic negatives are added as offline. The recorded safe
         frames a step replays and judges invalid join the hard safe memory, replayed at every later step: a
         failure's few negatives would otherwise suppress the culprit wherever its safe experience resembles them. With
-        `kvm.online_encoder="joint"` (the default) E_c learns from the contrastive and energy terms too, which moves
-        the codes of the failure contexts away from the culprit's safe ones. With "reconstruction" it learns only its
-        reconstruction here, so a feedback's few contexts (the failed ones are safe for the demonstrated skill and
-        hazardous for its culprit) cannot move the codes, nor the residual the smart gate reads.
+        `kvm.online_encoder="reconstruction"` (the default) E_c learns only its reconstruction here, so a feedback's
+        few contexts (the failed ones are safe for the demonstrated skill and hazardous for its culprit) cannot move
+        the codes, nor the residual the smart gate reads. With "joint" it learns from the contrastive and energy
+        terms too, which moves the codes of the failure contexts away from the culprit's safe ones.
         """
         cfg = self.config
         batch = batch or cfg.feedback_batch

@@ -209,12 +209,12 @@ def test_kvm_settings_reach_every_validity_method_under_its_own_switches(tiny_po
     checkpoint = ContinualRun(SequenceConfig.from_json(CONFIGS / "cl_tiny.json"), tiny_pool["out"]).final_checkpoint(
         "coda_kvm"
     )
-    settings = {"online_encoder": "reconstruction", "smart_gate": True}
+    settings = {"online_encoder": "joint", "smart_gate": True}
     kvm_on, _, _ = load_policy("coda_kvm", checkpoint)
-    assert kvm_on.config.kvm.online_encoder == "joint"  # the pool's own setting
+    assert kvm_on.config.kvm.online_encoder == "reconstruction"  # the pool's own setting
     for method, switches in KVM_METHODS.items():
         policy, _, _ = load_policy(method, checkpoint, kvm=settings)
-        assert policy.config.kvm.online_encoder == "reconstruction", method
+        assert policy.config.kvm.online_encoder == "joint", method
         assert policy.config.kvm.smart_gate == switches.get("smart_gate", True), method
         for key, value in switches.items():
             assert getattr(policy.config.kvm, key) == value, (method, key)

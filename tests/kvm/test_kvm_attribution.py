@@ -192,7 +192,7 @@ def _demonstration(policy, make_batch, steps: int = 5, skill: str | None = None)
 def test_with_the_joint_online_encoder_the_failed_contexts_move_the_codes_too(
     make_policy, make_kvm_config, make_batch, attempt
 ) -> None:
-    policy = make_policy()  # the default online encoder is "joint"
+    policy = make_policy(kvm=make_kvm_config(online_encoder="joint"))
     encoder = {k: v.clone() for k, v in policy.kvm.encoder.state_dict().items()}
     demo = _demonstration(policy, make_batch)
     policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6), demonstration=demo, gradient_steps=2)
@@ -205,7 +205,7 @@ def test_a_failure_without_a_strong_alternative_seeds_a_correcting_skill_from_it
     make_policy, make_kvm_config, make_batch, attempt
 ) -> None:
     # one skill: nothing else could take over once it is suppressed
-    policy = make_policy(kvm=make_kvm_config(online_encoder="reconstruction"))
+    policy = make_policy()  # the default online encoder: "reconstruction"
     backbone = {k: v.clone() for k, v in policy.backbone.state_dict().items()}
     old_skill = {k: v.clone() for k, v in policy.pool.tasks[0].state_dict().items()}
     encoder = {k: v.clone() for k, v in policy.kvm.encoder.state_dict().items()}
