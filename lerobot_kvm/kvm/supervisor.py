@@ -10,7 +10,7 @@ update of the feedback API (see `kvm.online`).
 
 import sys
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import torch
 from torch import Tensor, nn
@@ -157,8 +157,7 @@ class KnowledgeValidityModule(nn.Module):
         when a weight has changed since (optimizer steps and loads bump the tensors' version counters)."""
         net = self.classifier.net if classifier else self.energy.net
         params = self._scored_params[classifier]
-        first = params[0]
-        key = (n_skills, first.device, first.dtype, *(t._version for t in params))
+        key = (n_skills, *_cache_key(params[0], params))
         cached = self._scorers.get(classifier)
         if cached is None or cached[0] != key:
             bound = None if classifier else self.energy.energy_max
@@ -175,8 +174,7 @@ class KnowledgeValidityModule(nn.Module):
         on_codes = cfg.neighbour_space == "code"
         stamps = (b.stamp for b in (self.safe_offline, self.safe_online, self.fail_online, self.fail_offline))
         watched = (*self._encoder_params, *stamps) if on_codes else stamps  # buffers: a move replaces them
-        first = self._encoder_params[0]
-        key = (n_skills, cfg.neighbour_space, first.device, first.dtype, *(t._version for t in watched))
+        key = (n_skills, cfg.neighbour_space, *_cache_key(self._encoder_params[0], watched))
         if self._neighbours is None or self._neighbours[0] != key:
             self._neighbours = (key, self._build_neighbours(n_skills, on_codes))
         return self._neighbours[1]
@@ -644,6 +642,12 @@ def _of_skill(buffers: tuple[SampleBuffer, ...], skill: int) -> tuple[Tensor, Te
         rows.append(buffer.data[i][mine])
         tags.append(buffer.tag[i][mine])
     return torch.cat(rows), torch.cat(tags)
+
+
+def _cache_key(reference: Tensor, watched: Iterable[Tensor]) -> tuple:
+    """What a cache built from the `watched` tensors is valid for: the device and dtype of a reference parameter (a
+    move) and every watched tensor's version counter (in-place updates and loads bump it)."""
+    return (reference.device, reference.dtype, *(t._version for t in watched))
 
 
 def _spread(gate: Tensor | None) -> tuple[bool, bool]:
