@@ -97,9 +97,13 @@ def overhead_table(overhead: dict[str, Any] | None) -> list[str]:
             f"{overhead['ratio_gate_open']:.3f}",
         ],
     ]
-    if "paired_ratio_gate_closed" in overhead:  # reports written before the paired ratios have none
-        closed, opened = overhead["paired_ratio_gate_closed"], overhead["paired_ratio_gate_open"]
-        rows.append(["paired ratio (per rotation)", "1.00", f"{closed:.3f}", f"{opened:.3f}"])
+    paired = [  # reports written before the paired ratios have none
+        ("paired ratio (per rotation)", "paired_ratio_gate"),
+        ("paired ratio, control step", "paired_control_step_ratio_gate"),
+    ]
+    for label, key in paired:
+        if f"{key}_closed" in overhead:
+            rows.append([label, "1.00", f"{overhead[f'{key}_closed']:.3f}", f"{overhead[f'{key}_open']:.3f}"])
     lines = _table(["", "KVM off (backbone)", "gate closed", "gate open"], rows)
     lines.append(
         f"KVM state {overhead['kvm_state_mb']:.1f} MiB of the policy's {overhead['policy_state_mb']:.1f} MiB; "

@@ -60,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.threads:
         torch.set_num_threads(args.threads)
+    torch.manual_seed(args.seed)  # the feedback's gradient steps draw their batches: the same seed, the same memory
     path = Path(args.policy_path)
     if not (path / "model.safetensors").exists():
         raise FileNotFoundError(f"{path} is not a coda_kvm checkpoint (no model.safetensors)")

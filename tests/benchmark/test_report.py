@@ -21,3 +21,7 @@ def test_overhead_table_shows_the_paired_ratios_when_measured() -> None:
     paired = dict(MEASURED, paired_ratio_gate_closed=1.061, paired_ratio_gate_open=1.238)
     row = next(line for line in overhead_table(paired) if "paired" in line)
     assert "1.061" in row and "1.238" in row
+    assert sum("paired" in line for line in overhead_table(paired)) == 1  # no control-step pairs measured
+    both = dict(paired, paired_control_step_ratio_gate_closed=1.012, paired_control_step_ratio_gate_open=1.047)
+    row = next(line for line in overhead_table(both) if "control step" in line and "paired" in line)
+    assert "1.012" in row and "1.047" in row

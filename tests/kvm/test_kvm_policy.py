@@ -324,6 +324,7 @@ def test_overhead_measures_three_modes_on_the_same_inputs(make_policy, make_batc
     assert result["gate_open_check"] == {"off": False, "closed": False, "open": True}
     assert result["ratio_gate_closed"] > 0 and result["ratio_gate_open"] > 0
     assert result["paired_ratio_gate_closed"] > 0 and result["paired_ratio_gate_open"] > 0
+    assert result["paired_control_step_ratio_gate_closed"] > 0 and result["paired_control_step_ratio_gate_open"] > 0
     assert policy.config.kvm.enabled and policy.kvm.gate_override is None  # settings restored
 
 
