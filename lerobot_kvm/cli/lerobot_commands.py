@@ -4,7 +4,9 @@ Pipelines run the real tools as subprocesses and print each command, so that eve
 varied by hand.
 """
 
+import itertools
 import os
+import re
 import shlex
 import signal
 import subprocess
@@ -14,12 +16,33 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 POLL_S = 5.0  # how often a running command is checked
+LOADER_WORKERS = 1  # DataLoader workers of a single-process `lerobot-train`
+
+
+def available_cores() -> int:
+    """The cores this process may run on (the affinity mask where the platform has one)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def training_threads(workers: int) -> int:
+    """Torch threads for a training process that shares the cores with `workers` batch-loading processes: a
+    thread per remaining core. With torch's default (one per core) on two cores, its threads and the loader
+    fight for the same core and a training step takes about 40 % longer."""
+    return max(1, available_cores() - workers)
 
 
 def lerobot_bin(name: str) -> str:
     """The console script next to this interpreter (the venv's), else from PATH."""
     local = Path(sys.executable).parent / name
     return str(local) if local.exists() else name
+
+
+def program_name(cmd: Sequence[str]) -> str:
+    """The program a command line runs (past an `env NAME=value ...` prefix)."""
+    args = list(cmd)
+    if args and Path(args[0]).name == "env":
+        args = list(itertools.dropwhile(lambda a: re.match(r"[A-Za-z_]\w*=", a), args[1:]))
+    return Path(args[0]).name
 
 
 def run_logged(
@@ -44,13 +67,13 @@ def run_logged(
             _stop_group(proc)
             raise
     if returncode is None:
-        note = f"{Path(cmd[0]).name} was still running {grace_s:.0f} s after its work was complete: stopped"
+        note = f"{program_name(cmd)} was still running {grace_s:.0f} s after its work was complete: stopped"
         print(f"warning: {note} (log: {log})", flush=True)
         with log.open("a") as handle:
             handle.write(f"\n{note}\n")
     elif returncode:
         tail = "".join(log.read_text().splitlines(keepends=True)[-40:])
-        raise RuntimeError(f"{Path(cmd[0]).name} failed with exit code {returncode} (log: {log}):\n{tail}")
+        raise RuntimeError(f"{program_name(cmd)} failed with exit code {returncode} (log: {log}):\n{tail}")
 
 
 def _wait(proc: subprocess.Popen, done: Callable[[], bool] | None, grace_s: float) -> int | None:
@@ -98,9 +121,17 @@ def train_command(
     (`--policy.type=...` or `--policy.path=...`), `launcher` prefixes a multi-process launcher.
 
     Under a launcher every rank loads its batches in its own process (no DataLoader worker): the ranks
-    already fill the cores, and a worker's shutdown at exit can leave a rank hanging after training."""
-    launcher = [lerobot_bin(launcher[0]), *launcher[1:]] if launcher else []
-    cmd = [*launcher, lerobot_bin("lerobot-train"), *policy]
+    already fill the cores (torchrun gives each one thread), and a worker's shutdown at exit can leave a rank
+    hanging after training. A single process loads in one worker and, unless OMP_NUM_THREADS is set, runs with
+    `training_threads` (set through `env`, so that the printed command reproduces the run)."""
+    workers = 0 if launcher else LOADER_WORKERS
+    if launcher:
+        prefix = [lerobot_bin(launcher[0]), *launcher[1:]]
+    elif "OMP_NUM_THREADS" in os.environ:
+        prefix = []
+    else:
+        prefix = ["env", f"OMP_NUM_THREADS={training_threads(workers)}"]
+    cmd = [*prefix, lerobot_bin("lerobot-train"), *policy]
     cmd += [
         f"--dataset.repo_id={repo_id}",
         f"--dataset.root={dataset_root}",
@@ -111,7 +142,7 @@ def train_command(
         f"--batch_size={batch_size}",
         f"--save_freq={steps}",
         f"--log_freq={max(1, min(100, steps // 4))}",
-        f"--num_workers={0 if launcher else 1}",
+        f"--num_workers={workers}",
         f"--seed={seed}",
         "--wandb.enable=false",
     ]

@@ -9,24 +9,35 @@ from pathlib import Path
 import pytest
 
 from lerobot_kvm.cli import lerobot_commands
-from lerobot_kvm.cli.lerobot_commands import run_logged, train_command
+from lerobot_kvm.cli.lerobot_commands import program_name, run_logged, train_command
 
 
 def _flag(cmd: list[str], name: str) -> str:
     return next(arg.split("=", 1)[1] for arg in cmd if arg.startswith(f"--{name}="))
 
 
-def test_a_single_process_run_loads_batches_in_a_worker():
+def test_a_single_process_run_loads_batches_in_a_worker_and_leaves_it_a_core(monkeypatch):
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.setattr(lerobot_commands, "available_cores", lambda: 2)
+    cmd = train_command(Path("data"), "local/x", Path("out"), steps=10, batch_size=4, seed=0)
+    assert cmd[:2] == ["env", "OMP_NUM_THREADS=1"] and Path(cmd[2]).name == "lerobot-train"
+    assert program_name(cmd) == "lerobot-train"
+    assert _flag(cmd, "num_workers") == "1"
+    monkeypatch.setattr(lerobot_commands, "available_cores", lambda: 16)
+    assert train_command(Path("data"), "local/x", Path("out"), 10, 4, 0)[1] == "OMP_NUM_THREADS=15"
+
+
+def test_a_users_thread_count_is_left_alone(monkeypatch):
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
     cmd = train_command(Path("data"), "local/x", Path("out"), steps=10, batch_size=4, seed=0)
     assert Path(cmd[0]).name == "lerobot-train"
-    assert _flag(cmd, "num_workers") == "1"
 
 
 def test_under_a_launcher_each_rank_loads_its_own_batches():
     launcher = ["torchrun", "--standalone", "--nproc_per_node=2"]
     cmd = train_command(Path("data"), "local/x", Path("out"), 10, 4, 0, launcher=launcher)
     assert Path(cmd[0]).name == "torchrun" and cmd[1:3] == launcher[1:]
-    assert Path(cmd[3]).name == "lerobot-train"
+    assert Path(cmd[3]).name == "lerobot-train" and program_name(cmd) == "torchrun"
     assert _flag(cmd, "num_workers") == "0"
 
 
