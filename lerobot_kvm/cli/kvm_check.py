@@ -93,6 +93,16 @@ def seed_list(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"seeds must be comma-separated integers, got {text!r}") from None
 
 
+def lag_list(text: str) -> tuple[int, ...]:
+    try:
+        lags = tuple(int(s) for s in text.split(",") if s.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"context lags must be comma-separated integers, got {text!r}") from None
+    if any(lag <= 0 for lag in lags):
+        raise argparse.ArgumentTypeError(f"context lags must be positive, got {text!r}")
+    return lags
+
+
 def run(args: argparse.Namespace) -> int:
     from ..kvm.validity_check import check_validity_suite
 
@@ -107,6 +117,8 @@ def run(args: argparse.Namespace) -> int:
         feedback_steps=args.feedback_steps,
         risk_model=args.risk_model,
         neighbour_space=args.neighbour_space,
+        context_lags=args.context_lags,
+        fail_context_last=args.fail_context_last,
     )
     print(results_table(report["scenarios"], COLUMNS))
     print(LEGEND)
@@ -151,6 +163,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     kvm_choice(p, "risk_model", RISK_MODELS, "how the KVM scores a (context, skill) pair")
     kvm_choice(p, "neighbour_space", NEIGHBOUR_SPACES, "where the neighbour risk model searches: codes or raw contexts")
+    p.add_argument(
+        "--context-lags",
+        type=lag_list,
+        default=(),
+        help="record the sensed context with the frames these many steps earlier (e.g. 1,2,4,8; env.context_lags), "
+        "read by the KVM as the window and its current frame (policy.kvm.context_frames)",
+    )
+    p.add_argument(
+        "--fail-context-last",
+        type=int,
+        default=KvmConfig.fail_context_last,
+        help="the last steps of a failure that are failure context whatever the safe experience says "
+        "(policy.kvm.fail_context_last)",
+    )
     p.add_argument(
         "--seeds", type=seed_list, default=(0,), help="comma-separated seeds; each scenario is checked at each of them"
     )

@@ -8,6 +8,7 @@ target root.
 import json
 import os
 import shutil
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -20,7 +21,7 @@ import datasets as hf_datasets
 from ..envs.configuration_kvm_obsolescence import OBS_CONTEXT
 from ..envs.env import KvmObsolescenceEnv
 from ..envs.scenario import make_scenario
-from ..envs.sensing import ACTION_NAMES, CONTEXT_NAMES, STATE_NAMES
+from ..envs.sensing import ACTION_NAMES, STATE_NAMES, context_names
 
 LABELS_FILE = "meta/kvm_labels.json"
 OUTCOMES = ("success", "failure", "catastrophe")
@@ -68,6 +69,7 @@ class RecordingSpec:
     fps: int = 20
     image_size: int = 96
     keep_failures: bool = False  # expert episodes that fail are dropped unless kept as negatives
+    context_lags: list[int] = field(default_factory=list)  # the environment's `context_lags`
     extra: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -89,8 +91,9 @@ class RecordingSpec:
         }
 
 
-def dataset_features(image_size: int) -> dict:
+def dataset_features(image_size: int, context_lags: Sequence[int] = ()) -> dict:
     scalar = {"dtype": "int64", "shape": (1,), "names": None}
+    names = context_names(context_lags)
     return {
         "observation.images.front": {
             "dtype": "image",
@@ -98,7 +101,7 @@ def dataset_features(image_size: int) -> dict:
             "names": ["height", "width", "channels"],
         },
         "observation.state": {"dtype": "float32", "shape": (len(STATE_NAMES),), "names": list(STATE_NAMES)},
-        OBS_CONTEXT: {"dtype": "float32", "shape": (len(CONTEXT_NAMES),), "names": list(CONTEXT_NAMES)},
+        OBS_CONTEXT: {"dtype": "float32", "shape": (len(names),), "names": list(names)},
         "action": {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": list(ACTION_NAMES)},
         **{key: dict(scalar) for key in LABEL_KEYS},
     }
@@ -144,13 +147,23 @@ def record_dataset(
     ds: LeRobotDataset | None = None
     try:
         ds = LeRobotDataset.create(
-            repo_id=repo_id, fps=spec.fps, features=dataset_features(spec.image_size), root=tmp, use_videos=False
+            repo_id=repo_id,
+            fps=spec.fps,
+            features=dataset_features(spec.image_size, spec.context_lags),
+            root=tmp,
+            use_videos=False,
         )
         episode_seed = spec.seed
         total = sum(it.episodes for it in spec.items)
         bar = tqdm(total=total, desc=f"recording {spec.name}", disable=not progress, unit="ep")
         for item in spec.items:
-            env = KvmObsolescenceEnv(task=item.scenario, variant=item.variant, image_size=spec.image_size, fps=spec.fps)
+            env = KvmObsolescenceEnv(
+                task=item.scenario,
+                variant=item.variant,
+                image_size=spec.image_size,
+                fps=spec.fps,
+                context_lags=tuple(spec.context_lags),
+            )
             counts = dict.fromkeys(OUTCOMES, 0)
             task = item.task_string()
             labels = {

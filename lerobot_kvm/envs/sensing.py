@@ -5,6 +5,9 @@ fingertip touch, actuator efforts, commanded-vs-achieved motion, its own last ac
 Nothing here reads an object's parameters or the scenario's variant.
 """
 
+from collections import deque
+from collections.abc import Sequence
+
 import mujoco
 import numpy as np
 
@@ -12,7 +15,7 @@ ARM_JOINTS = ("x", "y", "z", "pitch")
 ACTUATORS = ("x", "y", "z", "pitch", "grip_l", "grip_r")
 ACTION_NAMES = ("x", "y", "z", "pitch", "grip")
 STATE_NAMES = ("x", "y", "z", "pitch", "finger_width", "grip_applied")
-CONTEXT_NAMES = (
+FRAME_NAMES = (  # one control step's sensed interaction context
     *(f"wrist_force_{a}" for a in "xyz"),
     *(f"wrist_torque_{a}" for a in "xyz"),
     "touch_l",
@@ -22,6 +25,36 @@ CONTEXT_NAMES = (
     "finger_velocity",
     *(f"last_action_{a}" for a in ACTION_NAMES),
 )
+
+
+def context_names(lags: Sequence[int] = ()) -> tuple[str, ...]:
+    """The channels of a context that joins the current frame with the frames `lags` steps before it."""
+    return (*FRAME_NAMES, *(f"{name}_lag{lag}" for lag in lags for name in FRAME_NAMES))
+
+
+class ContextWindow:
+    """The sensed context of each control step: its frame followed by the frames `lags` steps before it (the
+    episode's first frame while the episode is younger than a lag). A shift that shows in how the interaction
+    evolves, a load that leaves the hand over a few steps, is in no single frame; with no lags the context is the
+    frame alone."""
+
+    def __init__(self, lags: Sequence[int] = ()) -> None:
+        if any(not isinstance(lag, int) or lag <= 0 for lag in lags):
+            raise ValueError(f"context lags must be positive integers, got {list(lags)}")
+        self.lags = tuple(lags)
+        self.names = context_names(self.lags)
+        self._frames: deque[np.ndarray] = deque(maxlen=max(self.lags, default=0) + 1)
+
+    def reset(self) -> None:
+        self._frames.clear()
+
+    def push(self, frame: np.ndarray) -> np.ndarray:
+        """The context of the step whose frame this is (frames are pushed once per step, in order)."""
+        self._frames.append(frame)
+        if not self.lags:
+            return frame
+        last = len(self._frames) - 1
+        return np.concatenate([frame, *(self._frames[max(last - lag, 0)] for lag in self.lags)])
 
 
 class Sensors:

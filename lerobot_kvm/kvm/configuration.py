@@ -42,6 +42,13 @@ class KvmConfig:
     # (W=1: the current frame). The per-frame context already carries velocity, tracking error and the last
     # action, so the encoder itself is per-frame, identical offline and online.
     context_window: int = 1
+    # The sensed context holds this many frames of equal size, the current one first (a dataset recorded with the
+    # environment's `context_lags` has 1 + len(context_lags)). E_c and the smart gate read the current frame: the
+    # novelty of a step is in its own frame. The memories, the labelling of failures and the nearest-neighbour
+    # energy read the whole context and the current frame as two views: a context counts as known safe only where
+    # it is so in both, and is as risky as the view it looks riskiest in, so a shift that builds up over steps is
+    # seen in the window and one that shows in a single frame is not diluted by it (docs/measurements.md).
+    context_frames: int = 1
 
     # ------------------------------------------------------------------ smart gate (eq. 1)
     gate_k: float = 3.0
@@ -120,6 +127,10 @@ class KvmConfig:
     # culprit's safe experience until its end are failure context too (`SafeExperience.departed`), and so are such
     # steps of a corrective demonstration (hazardous for the culprit). None: only the rules above.
     departure_radius: float | None = 2.0
+    # The last steps before a failure that are failure context whatever the known-safe test says: where a shift shows
+    # only in how a step differs from the next episode's (a few steps before a spill), not in how far it lies from
+    # the safe experience, its place just before the failure is all that marks it. 0: the rules above alone.
+    fail_context_last: int = 0
 
     # ------------------------------------------------------------------ attribution (App. D)
     hypothesis_capacity: int = 64
@@ -183,6 +194,7 @@ class KvmConfig:
         positive_ints = {
             "latent_dim": self.latent_dim,
             "context_window": self.context_window,
+            "context_frames": self.context_frames,
             "gate_window": self.gate_window,
             "skill_embed_dim": self.skill_embed_dim,
             "feature_dim": self.feature_dim,
@@ -205,6 +217,7 @@ class KvmConfig:
             if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
                 raise ValueError(f"`kvm.{name}` must be a positive integer, got {value!r}")
         non_negative_ints = (
+            "fail_context_last",
             "gate_min_count",
             "feedback_steps",
             "focused_steps",

@@ -15,6 +15,7 @@ distances as |x|^2 - 2 x.y + |y|^2 from one matrix product in the references' ow
 padded to the longest with infinitely distant rows.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -111,6 +112,25 @@ class NeighbourEnergy:
             self._affine = (gamma, l0, self.weight / gamma, self.bias / gamma - l0)
         _, _, weight, bias = self._affine
         return torch.addmm(bias, self.references.mean_distance(*self.span.coords(x)), weight)
+
+
+class NeighbourViews:
+    """The energies of the same skills searched in several views of the contexts (`views`: each a function of the
+    contexts and the `NeighbourEnergy` built on what it reads): a context is as risky as the view it looks riskiest
+    in. The context window carries a shift that builds up over steps, its current frame one that shows in a single
+    step undiluted by the frames before it."""
+
+    def __init__(self, views: list[tuple[Callable[[Tensor], Tensor], NeighbourEnergy]]) -> None:
+        self.views = views
+        self.skills = views[0][1].skills
+
+    def energy(self, x: Tensor, gamma: float, l0: float) -> Tensor:
+        """[B, S] the largest energy over the views."""
+        view, first = self.views[0]
+        energy = first.energy(view(x), gamma, l0)
+        for view, other in self.views[1:]:
+            energy = torch.maximum(energy, other.energy(view(x), gamma, l0))
+        return energy
 
 
 @torch.no_grad()

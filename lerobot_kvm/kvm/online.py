@@ -7,12 +7,13 @@ after an attempt:
   skill the CL core proposed (the culprit rule below, applied whatever the outcome).
 * failure: the culprit (minimal counterfactual: the skill that carried the largest share of the fused prompt over
   the last K steps) and the failure context (steps outside the safe experience, sigma_c^2 > tau, plus the last K
-  steps, and the steps from which the attempt left the culprit's safe experience for good,
-  `SafeExperience.departed`) form a low-confidence hypothesis, or add evidence to a matching one. The failure
-  context paired with the culprit becomes provisional h_fail negatives; a corrective demonstration gives positives
-  for the skill that demonstrates the safe strategy (its name in `demonstration["skill"]`, else the most relevant
-  alternative), in its own contexts and in the failure context, and, where its contexts lie outside the culprit's
-  safe experience or leave it for good (`SafeExperience`), more negatives for the culprit: the demonstration ran
+  steps, the last `kvm.fail_context_last` steps whatever the safe experience says, and the steps from which the
+  attempt left the culprit's safe experience for good, `SafeExperience.departed`) form a low-confidence
+  hypothesis, or add evidence to a matching one. The failure context paired with the culprit becomes provisional
+  h_fail negatives; a corrective demonstration gives positives for the skill that demonstrates the safe strategy
+  (its name in `demonstration["skill"]`, else the most relevant alternative), in its own contexts and in the
+  failure context, and, where its contexts lie outside the culprit's safe experience or leave it for good
+  (`SafeExperience`), more negatives for the culprit: the demonstration ran
   where the culprit failed, and once the shift shows, its contexts are what the culprit would meet there. Then a
   fixed budget of gradient steps updates the KVM, replaying the safe memory so that what was safe stays safe (the
   safe samples the update judges invalid are replayed at every step after, `kvm.feedback_hard_safe_replay`). This first
@@ -368,6 +369,8 @@ def apply_feedback(
         context[-k:] = True
         experience = kvm.safe_experience(culprit)
         context &= ~experience.known(c_raw, cfg.known_safe_quantile)
+        if cfg.fail_context_last:
+            context[-cfg.fail_context_last :] = True
         context |= experience.departed(c_raw, cfg.departure_radius)
         hypothesis_id = None
         for h in kvm.hypotheses.ids(skill=culprit):

@@ -19,13 +19,13 @@ from .attribution import HypothesisTable
 from .configuration import KvmConfig
 from .context_encoder import ContextEncoder
 from .energy import EnergyModel, JointFeature, RiskClassifier, SkillScorer, validity
-from .experience import SafeExperience
+from .experience import ExperienceViews, SafeExperience
 from .fusion import correction_validity, fuse_weights
 from .gate import SmartGate
 from .losses import bce_loss, contrastive_loss, energy_loss, total_loss
 from .memory import DEMO, PERMANENT, ROUTINE, SYNTHETIC, EpisodeLabels, SampleBuffer
 from .metabolism import SkillMetabolism
-from .neighbour import NeighbourEnergy, calibrate
+from .neighbour import NeighbourEnergy, NeighbourViews, calibrate
 from .telemetry import KvmStepTelemetry
 
 GATE_OVERRIDES = (None, "open", "closed")
@@ -38,7 +38,13 @@ class KnowledgeValidityModule(nn.Module):
         self.config = config
         self.max_skills = max_skills
         self.encoder = ContextEncoder(
-            sensed_dim, query_dim, config.encoder_hidden, config.latent_dim, config.use_query, config.query_weight
+            sensed_dim,
+            query_dim,
+            config.encoder_hidden,
+            config.latent_dim,
+            config.use_query,
+            config.query_weight,
+            config.context_frames,
         )
         raw_dim = self.encoder.raw_dim
         self.joint = JointFeature(config.latent_dim, max_skills, config.skill_embed_dim, config.feature_dim)
@@ -67,7 +73,8 @@ class KnowledgeValidityModule(nn.Module):
         # Runtime only (never saved): a forced gate state for overhead measurement and the online sigma window.
         self.gate_override: str | None = None
         self._sigma_history: deque[Tensor] = deque(maxlen=config.context_window)
-        self._neighbours: tuple[tuple, NeighbourEnergy | None] | None = None  # cache of `neighbour_energies`
+        # cache of `neighbour_energies`
+        self._neighbours: tuple[tuple, NeighbourEnergy | NeighbourViews | None] | None = None
         self._encoder_params = tuple(self.encoder.parameters())  # loads and moves keep the Parameter objects
         joint = tuple(self.joint.parameters())  # what `scorer` snapshots: the joint feature and one network
         self._scored_params = {
@@ -165,7 +172,7 @@ class KnowledgeValidityModule(nn.Module):
                 cached = self._scorers[classifier] = (key, SkillScorer(self.joint, net, n_skills, bound))
         return cached[1]
 
-    def neighbour_energies(self, n_skills: int) -> NeighbourEnergy | None:
+    def neighbour_energies(self, n_skills: int) -> NeighbourEnergy | NeighbourViews | None:
         """The nearest-neighbour energies of the skills with failures in memory, in `kvm.neighbour_space` (None: no
         such skill); rebuilt when a memory (or, on codes, E_c) has changed since (in-place updates and loads bump
         the tensors' version counters; a move changes the device or dtype). The test runs at every gate-open step,
@@ -179,24 +186,41 @@ class KnowledgeValidityModule(nn.Module):
             self._neighbours = (key, self._build_neighbours(n_skills, on_codes))
         return self._neighbours[1]
 
+    def context_views(self) -> list[Callable[[Tensor], Tensor]]:
+        """The views of c_raw that the labelling of failures and the neighbour search read: the whole context and,
+        where it holds earlier frames (`kvm.context_frames`), its current frame."""
+        return [_whole] if self.config.context_frames == 1 else [_whole, self.encoder.frame_view]
+
     @torch.no_grad()
-    def _build_neighbours(self, n_skills: int, on_codes: bool) -> NeighbourEnergy | None:
+    def _build_neighbours(self, n_skills: int, on_codes: bool) -> NeighbourEnergy | NeighbourViews | None:
         cfg = self.config
-        skills, safe_rows, fail_rows, calibrations = [], [], [], []
+        views: list[Callable[[Tensor], Tensor]] = [lambda c_raw: self.encoder(c_raw)[0]] if on_codes else []
+        views = views or self.context_views()
+        skills, safe_rows, fail_rows, tag_rows = [], [], [], []
         for skill in range(n_skills):
             fail, _ = _of_skill((self.fail_online, self.fail_offline), skill)
             if not len(fail):
                 continue
             safe, tags = self.safe_samples(skill)
-            if on_codes:
-                safe, fail = self.encoder(safe)[0], self.encoder(fail)[0]
-            found = calibrate(safe, tags, fail, cfg.neighbour_quantile)
-            if found is not None:
-                skills.append(skill)
-                safe_rows.append(safe)
-                fail_rows.append(fail)
-                calibrations.append(found)
-        return NeighbourEnergy(skills, safe_rows, fail_rows, calibrations, cfg.neighbour_slope) if skills else None
+            skills.append(skill)
+            safe_rows.append(safe)
+            fail_rows.append(fail)
+            tag_rows.append(tags)
+        energies = []
+        for view in views:
+            kept, safe_seen, fail_seen, calibrations = [], [], [], []
+            for skill, safe, fail, tags in zip(skills, safe_rows, fail_rows, tag_rows, strict=True):
+                safe, fail = view(safe), view(fail)
+                found = calibrate(safe, tags, fail, cfg.neighbour_quantile)
+                if found is not None:
+                    kept.append(skill)
+                    safe_seen.append(safe)
+                    fail_seen.append(fail)
+                    calibrations.append(found)
+            if not kept:
+                return None
+            energies.append((view, NeighbourEnergy(kept, safe_seen, fail_seen, calibrations, cfg.neighbour_slope)))
+        return energies[0][1] if len(energies) == 1 else NeighbourViews(energies)
 
     def validity_of(self, c_raw: Tensor, n_skills: int, risk_model: str | None = None) -> Tensor:
         """v [B, S] with the gate bypassed (the energy model's judgement everywhere); invalid rows -> 0."""
@@ -598,15 +622,20 @@ class KnowledgeValidityModule(nn.Module):
         return _of_skill((self.safe_offline, self.safe_online), skill)
 
     @torch.no_grad()
-    def safe_experience(self, skill: int) -> SafeExperience:
-        """`skill`'s safe memory with the spread of its recorded episodes."""
+    def safe_experience(self, skill: int) -> ExperienceViews:
+        """`skill`'s safe memory with the spread of its recorded episodes, in each of `context_views`."""
         samples, tags = self.safe_samples(skill)
         tagged = tags >= 0
-        if len(torch.unique(tags[tagged])) < 2:
-            return SafeExperience(samples, samples.new_zeros(0))
-        cross = torch.cdist(samples[tagged], samples[tagged])
-        cross[tags[tagged].unsqueeze(0) == tags[tagged].unsqueeze(1)] = float("inf")
-        return SafeExperience(samples, cross.min(1).values)
+        views = []
+        for view in self.context_views():
+            seen = view(samples)
+            if len(torch.unique(tags[tagged])) < 2:
+                views.append((view, SafeExperience(seen, seen.new_zeros(0))))
+                continue
+            cross = torch.cdist(seen[tagged], seen[tagged])
+            cross[tags[tagged].unsqueeze(0) == tags[tagged].unsqueeze(1)] = float("inf")
+            views.append((view, SafeExperience(seen, cross.min(1).values)))
+        return ExperienceViews(views)
 
     def add_safe(self, c_raw: Tensor, skills: Tensor, routine: bool, demo: bool = False) -> None:
         flags = (ROUTINE if routine else 0) | (DEMO if demo else 0)
@@ -631,6 +660,11 @@ class KnowledgeValidityModule(nn.Module):
 
     def n_permanent(self) -> int:
         return int(((self.fail_online.flags & PERMANENT) > 0).sum())
+
+
+def _whole(c_raw: Tensor) -> Tensor:
+    """The view of the whole context."""
+    return c_raw
 
 
 def _of_skill(buffers: tuple[SampleBuffer, ...], skill: int) -> tuple[Tensor, Tensor]:

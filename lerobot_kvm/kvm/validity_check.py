@@ -148,8 +148,10 @@ def _offline_histories(data: dict[str, Any], where: Tensor) -> Tensor:
     return out[where]
 
 
-def _rollouts(scenario_id: str, variant: str, skill: str, preprocessor: Any, seeds: list[int]) -> list[dict]:
-    env = KvmObsolescenceEnv(scenario_id, variant=variant)
+def _rollouts(
+    scenario_id: str, variant: str, skill: str, preprocessor: Any, seeds: list[int], context_lags: tuple[int, ...]
+) -> list[dict]:
+    env = KvmObsolescenceEnv(scenario_id, variant=variant, context_lags=context_lags)
     demos = [expert_rollout(env, skill, preprocessor, seed=s)[0] for s in seeds]
     env.close()
     return demos
@@ -174,11 +176,14 @@ def check_validity(
     feedback_steps: int = KvmConfig.feedback_steps,
     risk_model: str = KvmConfig.risk_model,
     neighbour_space: str = KvmConfig.neighbour_space,
+    context_lags: tuple[int, ...] = (),
+    fail_context_last: int = KvmConfig.fail_context_last,
     workdir: str | Path | None = None,
 ) -> dict[str, Any]:
     """One row of the validity report for `scenario_id` (see the module docstring for the protocol);
-    `feedback_steps` is the feedback's gradient budget, `risk_model` and `neighbour_space` the KVM's
-    (`kvm.risk_model`, `kvm.neighbour_space`)."""
+    `feedback_steps` is the feedback's gradient budget, `risk_model`, `neighbour_space` and `fail_context_last`
+    the KVM's (`kvm.<name>`); `context_lags` the environment's (`env.context_lags`, read by the KVM as
+    `kvm.context_frames` = 1 + their number)."""
     info = SCENARIOS[scenario_id].info
     torch.manual_seed(seed)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
@@ -191,9 +196,16 @@ def check_validity(
                 RecordItem(scenario_id, "prior", info.safe_skill, episodes, "skill"),
             ],
             seed=seed,
+            context_lags=list(context_lags),
         )
         record_dataset(spec, root, repo_id=repo_id, progress=False)
-        options = {"online_encoder": online_encoder, "risk_model": risk_model, "neighbour_space": neighbour_space}
+        options = {
+            "online_encoder": online_encoder,
+            "risk_model": risk_model,
+            "neighbour_space": neighbour_space,
+            "context_frames": 1 + len(context_lags),
+            "fail_context_last": fail_context_last,
+        }
         policy = _small_policy(root, repo_id, info.prior_skill, options)
         frames = recorded_frames(root, repo_id, policy.config)
         labels = load_labels(root)["episodes"]
@@ -211,7 +223,7 @@ def check_validity(
     pretrain_kvm(policy, data, steps=offline_steps[1], where=~is_prior)
     policy.eval()
 
-    env = KvmObsolescenceEnv(scenario_id, variant="shifted")
+    env = KvmObsolescenceEnv(scenario_id, variant="shifted", context_lags=context_lags)
     base = seed + 10_000
     failed, failed_outcome = expert_rollout(env, info.prior_skill, pre, seed=base)
     corrective, corrective_outcome = expert_rollout(
@@ -221,8 +233,8 @@ def check_validity(
     report = policy.kvm_feedback(
         failed_outcome, trace_from_demonstration(failed), demonstration=corrective, gradient_steps=feedback_steps
     )
-    twins = _rollouts(scenario_id, "prior", info.prior_skill, pre, [base]) + _rollouts(
-        scenario_id, "prior", info.safe_skill, pre, [base + 1]
+    twins = _rollouts(scenario_id, "prior", info.prior_skill, pre, [base], context_lags) + _rollouts(
+        scenario_id, "prior", info.safe_skill, pre, [base + 1], context_lags
     )
     met_from = [shift_step(t, d) for t, d in zip(twins, (failed, corrective), strict=True)]
     met = _after([failed, corrective], met_from)
@@ -233,10 +245,10 @@ def check_validity(
     )
 
     seeds = [base + 100 + i for i in range(held_out)]
-    prior_prior = _rollouts(scenario_id, "prior", info.prior_skill, pre, seeds)
-    prior_safe = _rollouts(scenario_id, "prior", info.safe_skill, pre, seeds)
-    shifted_prior = _rollouts(scenario_id, "shifted", info.prior_skill, pre, seeds)
-    shifted_safe = _rollouts(scenario_id, "shifted", info.safe_skill, pre, seeds)
+    prior_prior = _rollouts(scenario_id, "prior", info.prior_skill, pre, seeds, context_lags)
+    prior_safe = _rollouts(scenario_id, "prior", info.safe_skill, pre, seeds, context_lags)
+    shifted_prior = _rollouts(scenario_id, "shifted", info.prior_skill, pre, seeds, context_lags)
+    shifted_safe = _rollouts(scenario_id, "shifted", info.safe_skill, pre, seeds, context_lags)
     start_prior = [shift_step(a, b) for a, b in zip(prior_prior, shifted_prior, strict=True)]
     start_safe = [shift_step(a, b) for a, b in zip(prior_safe, shifted_safe, strict=True)]
     own = _after(shifted_prior, start_prior)  # the prior skill's own shifted steps (none if it fails at contact)

@@ -4,7 +4,7 @@ import pytest
 
 from lerobot_kvm.envs import KvmObsolescenceEnv
 from lerobot_kvm.envs.scenarios.clothing import AIRBORNE, COLLAR
-from lerobot_kvm.envs.sensing import CONTEXT_NAMES
+from lerobot_kvm.envs.sensing import FRAME_NAMES
 from lerobot_kvm.envs.suite_check import run_episode
 
 
@@ -28,7 +28,7 @@ def test_firm_pinch_lifts_the_soaked_shirt_clear():
 def test_soaked_shirt_weighs_on_the_wrist():
     """Rule 3: once the whole shirt hangs from the same firm pinch, the wrist feels the water's weight."""
     env = KvmObsolescenceEnv(task="clothing")
-    force_z = CONTEXT_NAMES.index("wrist_force_z")
+    force_z = FRAME_NAMES.index("wrist_force_z")
     load = {}
     for variant in ("prior", "shifted"):
         assert run_episode(env, variant, "firm_grasp", seed=0).success

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from lerobot_kvm.envs import KvmObsolescenceEnv
-from lerobot_kvm.envs.sensing import CONTEXT_NAMES
+from lerobot_kvm.envs.sensing import FRAME_NAMES
 
-EFFORT_X = CONTEXT_NAMES.index("effort_x")
+EFFORT_X = FRAME_NAMES.index("effort_x")
 
 
 def run(variant: str, skill: str, seed: int = 0) -> tuple[dict, np.ndarray, KvmObsolescenceEnv]:

@@ -5,7 +5,7 @@ import pytest
 
 from lerobot_kvm.envs import KvmObsolescenceEnv
 from lerobot_kvm.envs.scenarios.ice_cream import LATTICE, TUB_H, TUB_IN, TUB_WALL
-from lerobot_kvm.envs.sensing import CONTEXT_NAMES
+from lerobot_kvm.envs.sensing import FRAME_NAMES
 from lerobot_kvm.envs.suite_check import run_episode
 
 
@@ -48,7 +48,7 @@ def test_gentle_scoop_lifts_melted_ice_cream_without_a_spill(seed):
 
 def test_frozen_ice_cream_drags_harder_on_the_gentle_scoop():
     """Rule 3: dragged through the bed at the same speed, frozen ice cream loads the x actuator more."""
-    effort_x = CONTEXT_NAMES.index("effort_x")
+    effort_x = FRAME_NAMES.index("effort_x")
     drag = {}
     for variant in ("prior", "shifted"):
         env = KvmObsolescenceEnv(task="ice_cream", variant=variant)

@@ -3,9 +3,9 @@
 import numpy as np
 
 from lerobot_kvm.envs import KvmObsolescenceEnv
-from lerobot_kvm.envs.sensing import CONTEXT_NAMES
+from lerobot_kvm.envs.sensing import FRAME_NAMES
 
-FORCE = [CONTEXT_NAMES.index(f"wrist_force_{a}") for a in "xyz"]
+FORCE = [FRAME_NAMES.index(f"wrist_force_{a}") for a in "xyz"]
 
 
 def run(variant: str, skill: str, seed: int = 0) -> tuple[dict, np.ndarray, KvmObsolescenceEnv]:

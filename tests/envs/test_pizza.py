@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lerobot_kvm.envs import KvmObsolescenceEnv
-from lerobot_kvm.envs.sensing import CONTEXT_NAMES
+from lerobot_kvm.envs.sensing import FRAME_NAMES
 from lerobot_kvm.envs.suite_check import run_episode
 
 
@@ -32,7 +32,7 @@ def test_supported_slide_moves_the_hot_slice_intact():
 
 def test_hot_slice_twists_the_wrist_less_once_lifted():
     """Rule 3: a cold slice cantilevers out of the pinch; a hot one hangs closer and pulls with a shorter arm."""
-    torque_y = CONTEXT_NAMES.index("wrist_torque_y")
+    torque_y = FRAME_NAMES.index("wrist_torque_y")
     moment = {}
     for variant in ("prior", "shifted"):
         env = KvmObsolescenceEnv(task="pizza", variant=variant)

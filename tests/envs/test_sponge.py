@@ -4,7 +4,7 @@ import pytest
 
 from lerobot_kvm.envs import KvmObsolescenceEnv
 from lerobot_kvm.envs.scenarios.sponge import AIRBORNE, HALF, HAND_TOP
-from lerobot_kvm.envs.sensing import CONTEXT_NAMES
+from lerobot_kvm.envs.sensing import FRAME_NAMES
 from lerobot_kvm.envs.suite_check import run_episode
 
 
@@ -36,7 +36,7 @@ def test_firm_grasp_carries_the_soaked_sponge():
 def test_soaked_sponge_weighs_on_the_wrist():
     """Rule 3: held in the same firm grasp, the soaked sponge pulls the wrist down far harder."""
     env = KvmObsolescenceEnv(task="sponge")
-    force_z = CONTEXT_NAMES.index("wrist_force_z")
+    force_z = FRAME_NAMES.index("wrist_force_z")
     held = {}
     for variant in ("prior", "shifted"):
         assert run_episode(env, variant, "firm_grasp", seed=0).success

@@ -14,6 +14,7 @@ from lerobot_kvm.kvm.attribution import (
     knowledge_gap,
     normalised_relevance,
 )
+from lerobot_kvm.kvm.experience import ExperienceViews, SafeExperience
 from lerobot_kvm.kvm.memory import PERMANENT
 from lerobot_kvm.kvm.online import make_demonstration
 
@@ -361,6 +362,45 @@ def test_a_failure_that_looks_exactly_like_safe_experience_adds_no_negatives(mak
     assert report["culprit"] == 0 and report["negatives_added"] == 0
 
 
+def test_the_last_steps_of_a_failure_are_blamed_whatever_the_safe_experience_says(
+    make_policy, make_kvm_config, attempt
+) -> None:
+    policy = make_policy(kvm=make_kvm_config(fail_context_last=2))
+    trace = attempt(policy, EGG, steps=6, seed=0)
+    c_raw = policy.kvm.raw_context(torch.cat(trace.contexts), policy.encode_query([EGG] * len(trace)))
+    for episode in range(2):  # the very contexts of this attempt, recorded safe in two episodes
+        policy.kvm.safe_offline.add(c_raw, skill=0, tag=episode)
+    report = policy.kvm_feedback("catastrophe", trace, gradient_steps=0)
+    assert report["failure_context_steps"] == [4, 5] and report["negatives_added"] == 2
+
+
+def test_a_context_is_known_safe_only_where_every_view_knows_it() -> None:
+    """The window and its current frame: a step near the safe experience in one view but far in the other is not
+    known, and an attempt has departed from where it has in either view."""
+    samples = torch.tensor([[0.0, 0.0], [1.0, 1.0]])
+    spread = torch.ones(2)
+    first, second = (lambda c: c[:, :1]), (lambda c: c[:, 1:])
+    views = ExperienceViews(
+        [(first, SafeExperience(first(samples), spread)), (second, SafeExperience(second(samples), spread))]
+    )
+    steps = torch.tensor([[0.5, 0.5], [9.0, 0.5], [9.0, 9.0], [9.0, 0.5]])  # the first view leaves for good
+    assert views.known(steps, 1.0).tolist() == [True, False, False, False]
+    assert views.departed(steps, 1.0).tolist() == [False, True, True, True]
+    assert not views.departed(steps[:, [1, 1]], 1.0).any()  # neither view ends far
+
+
+def test_a_windowed_context_is_seen_whole_and_by_its_current_frame(make_policy, make_kvm_config) -> None:
+    kvm = make_policy(kvm=make_kvm_config(context_frames=2)).kvm
+    rows = torch.randn(6, kvm.encoder.raw_dim)
+    kvm.safe_offline.add(rows, skill=0, tag=torch.tensor([0, 0, 0, 1, 1, 1]))
+    views = kvm.safe_experience(0).views
+    assert [view(rows).shape[1] for view, _ in views] == [
+        kvm.encoder.raw_dim,
+        kvm.encoder.raw_dim - kvm.encoder.frame_dim,
+    ]
+    torch.testing.assert_close(views[1][1].samples, kvm.encoder.frame_view(rows))
+
+
 def test_a_failure_that_leaves_the_safe_experience_for_good_is_blamed_from_where_it_left(
     make_policy, make_kvm_config, attempt
 ) -> None:
@@ -441,3 +481,12 @@ def test_the_gate_opens_in_the_contexts_of_a_failure_met_online_and_nowhere_else
         rates[failure_gate] = (float(kvm.gate_open(mu, sigma2).float().mean()), routine.summary()["gate_open_steps"])
     assert rates[True][0] == 1.0 and rates[False][0] < 1.0
     assert rates[True][1] == rates[False][1] < 3
+
+
+def test_a_policy_with_a_windowed_context_learns_from_a_failure(make_policy, make_kvm_config, attempt) -> None:
+    policy = make_policy(kvm=make_kvm_config(context_frames=2, fail_context_last=2))
+    assert policy.kvm.encoder.frame_dim == policy.config.context_dim // 2
+    report = policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6, seed=0), gradient_steps=2)
+    assert report["negatives_added"] >= 2 and {4, 5} <= set(report["failure_context_steps"])
+    trace = attempt(policy, EGG, steps=4, seed=0)
+    assert all(torch.isfinite(t.validity).all() for t in trace.telemetry if t is not None and t.validity is not None)

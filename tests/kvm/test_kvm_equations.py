@@ -293,3 +293,27 @@ def test_joint_feature_keeps_the_skill_in_a_far_context() -> None:
     assert h.shape == (1, 2, 2)
     assert torch.allclose(h[0], torch.tensor([[s, s], [s, -s]]))
     assert torch.allclose(joint(far.expand(2, -1), torch.arange(2)), h[0])
+
+
+def test_the_encoder_of_a_windowed_context_reads_its_current_frame() -> None:
+    """With earlier frames in the sensed context, E_c and its gate probe read the current frame and the query only:
+    the earlier frames change neither the code nor sigma_c^2."""
+    torch.manual_seed(0)
+    enc = ContextEncoder(
+        sensed_dim=6, query_dim=4, hidden=[8], latent_dim=2, use_query=True, query_weight=0.5, frames=3
+    )
+    assert (enc.frame_dim, enc.raw_dim) == (2, 10)
+    sensed, query = torch.randn(5, 6), torch.randn(5, 4)
+    c_raw = enc.raw_context(sensed, query)
+    torch.testing.assert_close(enc.frame_view(c_raw), torch.cat([c_raw[:, :2], c_raw[:, 6:]], dim=-1))
+    other = sensed.clone()
+    other[:, 2:] = torch.randn(5, 4)  # other earlier frames, the same current one
+    mu, parts = enc(c_raw)
+    mu_other, parts_other = enc(enc.raw_context(other, query))
+    torch.testing.assert_close((mu, parts), (mu_other, parts_other))
+    scale = torch.tensor([0.3, 0.02])
+    sigma2, hidden_code = enc.gate_probe(scale)(sensed, query)
+    torch.testing.assert_close(sigma2, enc.sigma2(parts, scale))
+    torch.testing.assert_close(enc.gate_probe(scale).code(hidden_code), mu)
+    with pytest.raises(ValueError, match="cannot hold 4 frames"):
+        ContextEncoder(sensed_dim=6, query_dim=4, hidden=[8], latent_dim=2, use_query=True, query_weight=0.5, frames=4)
