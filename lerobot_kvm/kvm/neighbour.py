@@ -15,11 +15,12 @@ distances as |x|^2 - 2 x.y + |y|^2 from one matrix product in the references' ow
 padded to the longest with infinitely distant rows.
 """
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
+
+from .experience import View
 
 NEIGHBOURS = 3
 CALIBRATION_SAMPLES = 512  # held-out safe samples the threshold is taken over
@@ -120,7 +121,7 @@ class NeighbourViews:
     in. The context window carries a shift that builds up over steps, its current frame one that shows in a single
     step undiluted by the frames before it."""
 
-    def __init__(self, views: list[tuple[Callable[[Tensor], Tensor], NeighbourEnergy]]) -> None:
+    def __init__(self, views: list[tuple[View, NeighbourEnergy]]) -> None:
         self.views = views
         self.skills = views[0][1].skills
 

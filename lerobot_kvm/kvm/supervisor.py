@@ -19,7 +19,7 @@ from .attribution import HypothesisTable
 from .configuration import KvmConfig
 from .context_encoder import ContextEncoder
 from .energy import EnergyModel, JointFeature, RiskClassifier, SkillScorer, validity
-from .experience import ExperienceViews, SafeExperience
+from .experience import ExperienceViews, SafeExperience, View
 from .fusion import correction_validity, fuse_weights
 from .gate import SmartGate
 from .losses import bce_loss, contrastive_loss, energy_loss, total_loss
@@ -186,7 +186,11 @@ class KnowledgeValidityModule(nn.Module):
             self._neighbours = (key, self._build_neighbours(n_skills, on_codes))
         return self._neighbours[1]
 
-    def context_views(self) -> list[Callable[[Tensor], Tensor]]:
+    def _codes(self, c_raw: Tensor) -> Tensor:
+        """The view of E_c's codes mu_c."""
+        return self.encoder(c_raw)[0]
+
+    def context_views(self) -> list[View]:
         """The views of c_raw that the labelling of failures and the neighbour search read: the whole context and,
         where it holds earlier frames (`kvm.context_frames`), its current frame."""
         return [_whole] if self.config.context_frames == 1 else [_whole, self.encoder.frame_view]
@@ -194,8 +198,7 @@ class KnowledgeValidityModule(nn.Module):
     @torch.no_grad()
     def _build_neighbours(self, n_skills: int, on_codes: bool) -> NeighbourEnergy | NeighbourViews | None:
         cfg = self.config
-        views: list[Callable[[Tensor], Tensor]] = [lambda c_raw: self.encoder(c_raw)[0]] if on_codes else []
-        views = views or self.context_views()
+        views = [self._codes] if on_codes else self.context_views()
         skills, safe_rows, fail_rows, tag_rows = [], [], [], []
         for skill in range(n_skills):
             fail, _ = _of_skill((self.fail_online, self.fail_offline), skill)
@@ -626,14 +629,17 @@ class KnowledgeValidityModule(nn.Module):
         """`skill`'s safe memory with the spread of its recorded episodes, in each of `context_views`."""
         samples, tags = self.safe_samples(skill)
         tagged = tags >= 0
+        episodes = tags[tagged]
+        measurable = len(torch.unique(episodes)) >= 2
+        same_episode = episodes.unsqueeze(0) == episodes.unsqueeze(1)
         views = []
         for view in self.context_views():
             seen = view(samples)
-            if len(torch.unique(tags[tagged])) < 2:
+            if not measurable:
                 views.append((view, SafeExperience(seen, seen.new_zeros(0))))
                 continue
             cross = torch.cdist(seen[tagged], seen[tagged])
-            cross[tags[tagged].unsqueeze(0) == tags[tagged].unsqueeze(1)] = float("inf")
+            cross[same_episode] = float("inf")
             views.append((view, SafeExperience(seen, cross.min(1).values)))
         return ExperienceViews(views)
 
