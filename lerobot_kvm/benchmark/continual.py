@@ -30,6 +30,7 @@ from tqdm import tqdm
 from ..cli.lerobot_commands import eval_command, run_logged, train_command
 from ..datasets.recorder import RecordingSpec, RecordItem, load_labels, record_dataset
 from ..envs.scenario import make_scenario
+from ..envs.sensing import ContextWindow
 from .cl_metrics import cl_metrics, joint_metrics
 
 CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"
@@ -123,10 +124,15 @@ class SequenceConfig:
     eval_episodes: int = 10
     eval_seed: int = 100_000  # far from the recording seeds: evaluation starts are held out
     dataset_root: str | None = None
+    # The environment's `context_lags` (`--env.context_lags`): every episode is recorded, evaluated and challenged
+    # with each step's context joined to the frames these many steps before it; `coda_kvm` reads the window as
+    # `kvm.context_frames` = 1 + their number. Empty: the frame alone.
+    context_lags: list[int] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if not self.tasks:
             raise ValueError("a sequence needs at least one task")
+        ContextWindow(self.context_lags)  # refuses lags that are not positive integers
         names = [t.name for t in self.tasks]
         names += [t.name for t in self.pretrain_tasks]
         if len(set(names)) != len(names):
@@ -159,7 +165,12 @@ class SequenceConfig:
     def recording_spec(self) -> RecordingSpec:
         items = [t.record_item(self.pretrain_episodes_per_task) for t in self.pretrain_tasks]
         items += [t.record_item(self.episodes_per_task) for t in self.tasks]
-        return RecordingSpec(name=f"kvm_cl_{self.name}", items=items, seed=self.seed)
+        return RecordingSpec(name=f"kvm_cl_{self.name}", items=items, seed=self.seed, context_lags=self.context_lags)
+
+    @property
+    def env_args(self) -> list[str]:
+        """The `lerobot-eval` environment arguments every evaluation of the sequence shares."""
+        return [f"--env.context_lags=[{','.join(map(str, self.context_lags))}]"] if self.context_lags else []
 
 
 def task_episodes(dataset_root: Path, tasks: Sequence[TaskSpec]) -> list[list[int]]:
@@ -244,6 +255,8 @@ class ContinualRun:
             args = [f"--policy.path={previous}", *method.args, *method.later_stage_args]
         if method.policy == "coda_kvm" and skill is not None:
             args.append(f"--policy.skill_name={skill}")
+        if method.policy == "coda_kvm" and previous is None and self.config.context_lags:
+            args.append(f"--policy.kvm.context_frames={1 + len(self.config.context_lags)}")  # later stages keep it
         return args
 
     def _pretrain(self, method: MethodSpec, episodes: list[list[int]], bar: tqdm) -> Path | None:
@@ -310,7 +323,7 @@ class ContinualRun:
                     self.config.eval_episodes,
                     self.config.eval_seed,
                     instruction,
-                    extra,
+                    [*self.config.env_args, *extra],
                 )
                 run_logged(cmd, eval_dir / f"{variant}_{instruction}.log")
             info = json.loads(info_path.read_text())

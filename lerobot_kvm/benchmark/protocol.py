@@ -342,12 +342,16 @@ class Benchmark:
             (partial / f"pass_{older}.json").unlink(missing_ok=True)
             shutil.rmtree(partial / f"pass_{older}", ignore_errors=True)
 
+    def _env(self, scenario: str, variant: str) -> KvmObsolescenceEnv:
+        """The scenario's environment, sensing as the pool's datasets were recorded (the sequence's context lags)."""
+        return KvmObsolescenceEnv(scenario, variant=variant, context_lags=tuple(self.sequence.context_lags))
+
     def _challenge(
         self, method: str, policy: Any, pre: Any, post: Any, base: dict[str, Any], seed: int, out: dict[str, Any]
     ) -> None:
         """Probe, attempt 1, and after a failure the feedback and attempt 2, on the shifted variant."""
         info = SCENARIOS[base["scenario"]].info
-        env = KvmObsolescenceEnv(base["scenario"], variant="shifted")
+        env = self._env(base["scenario"], "shifted")
         try:
             reference, ref_outcome = expert_rollout(env, info.prior_skill, pre, seed=seed)
             if uses_validity(method):
@@ -375,9 +379,8 @@ class Benchmark:
         finally:
             env.close()
 
-    @staticmethod
     def _probe(
-        policy: Any, pre: Any, base: dict[str, Any], seed: int, reference: dict[str, Any]
+        self, policy: Any, pre: Any, base: dict[str, Any], seed: int, reference: dict[str, Any]
     ) -> dict[str, Any] | None:
         """v and E of the scenario's prior skill. Hazardous: the shifted contexts both scripted experts sense once
         the shift shows (the prior skill's own attempt often ends at the harm, the safe skill's goes on); safe:
@@ -389,7 +392,7 @@ class Benchmark:
             return None
         rollouts = {}
         for variant in ("prior", "shifted"):
-            env = KvmObsolescenceEnv(scenario, variant=variant)
+            env = self._env(scenario, variant)
             try:
                 for expert in (info.prior_skill, info.safe_skill):
                     if (variant, expert) != ("shifted", info.prior_skill):
@@ -413,7 +416,7 @@ class Benchmark:
         for offset, kind in enumerate(self.config.controls, start=2):
             if kind not in variants:
                 continue
-            env = KvmObsolescenceEnv(base["scenario"], variant=kind)
+            env = self._env(base["scenario"], kind)
             try:
                 result = run_attempt(policy, env, pre, post, seed=seed + offset)
             finally:
@@ -525,7 +528,10 @@ class Benchmark:
         from ..policy import CodaKvmPolicy
 
         policy = CodaKvmPolicy.from_pretrained(checkpoint)
-        batch, source = observation_inputs(policy, checkpoint, self.config.scenarios[0], "prior", self.config.seed)
+        lags = tuple(self.sequence.context_lags)
+        batch, source = observation_inputs(
+            policy, checkpoint, self.config.scenarios[0], "prior", self.config.seed, lags
+        )
         result = measure_overhead(policy, batch, steps=self.config.overhead_steps)
         kvm_bytes = sum(t.numel() * t.element_size() for t in policy.kvm.state_dict().values())
         total_bytes = sum(t.numel() * t.element_size() for t in policy.state_dict().values())

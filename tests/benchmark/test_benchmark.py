@@ -63,6 +63,18 @@ def test_scenarios_whose_prior_skill_the_pool_never_learned_are_flagged():
     assert coverage_lines([]) == [] and "chip_bag" in coverage_lines(["chip_bag"])[0]
 
 
+def test_a_windowed_sequence_gives_the_benchmark_its_context_window(tmp_path):
+    from lerobot_kvm.envs.sensing import FRAME_NAMES
+
+    sequence = json.loads((CONFIGS / "cl_quick.json").read_text()) | {"context_lags": [1, 2, 4, 8]}
+    path = tmp_path / "cl_windowed.json"
+    path.write_text(json.dumps(sequence))
+    bench = Benchmark(BenchmarkConfig("w", str(path), ["book"], methods=["coda_kvm"]), tmp_path, progress=False)
+    env = bench._env("book", "shifted")  # challenges, probes and controls sense as the pool's datasets were recorded
+    assert env.observation_space["context"].shape == (5 * len(FRAME_NAMES),)
+    env.close()
+
+
 def test_full_benchmark_covers_the_whole_suite_with_every_method():
     full = BenchmarkConfig.from_json(CONFIGS / "benchmark_full.json")
     assert sorted(full.scenarios) == sorted(SCENARIOS) and full.runs >= 5 and full.passes == 3
