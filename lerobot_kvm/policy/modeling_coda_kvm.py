@@ -56,6 +56,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
             n_cameras=len(config.image_features),
             state_dim=config.state_dim,
             context_dim=config.context_dim,
+            context_frames=config.kvm.context_frames,
             action_dim=config.action_dim,
             chunk_size=config.chunk_size,
             vision_channels=list(config.vision_channels),
