@@ -30,7 +30,7 @@ from tqdm import tqdm
 from ..cli.lerobot_commands import eval_command, run_logged, train_command
 from ..datasets.recorder import RecordingSpec, RecordItem, load_labels, record_dataset
 from ..envs.scenario import make_scenario
-from ..envs.sensing import ContextWindow
+from ..envs.sensing import check_lags
 from .cl_metrics import cl_metrics, joint_metrics
 
 CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"
@@ -132,7 +132,7 @@ class SequenceConfig:
     def __post_init__(self) -> None:
         if not self.tasks:
             raise ValueError("a sequence needs at least one task")
-        ContextWindow(self.context_lags)  # refuses lags that are not positive integers
+        check_lags(self.context_lags)
         names = [t.name for t in self.tasks]
         names += [t.name for t in self.pretrain_tasks]
         if len(set(names)) != len(names):

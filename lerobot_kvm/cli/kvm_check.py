@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 from ..envs.scenario import resolve_tasks
+from ..envs.sensing import check_lags
 from ..kvm.configuration import NEIGHBOUR_SPACES, ONLINE_ENCODERS, RISK_MODELS, KvmConfig
 from .table import results_table
 
@@ -95,12 +96,11 @@ def seed_list(text: str) -> tuple[int, ...]:
 
 def lag_list(text: str) -> tuple[int, ...]:
     try:
-        lags = tuple(int(s) for s in text.split(",") if s.strip())
+        return check_lags([int(s) for s in text.split(",") if s.strip()])
     except ValueError:
-        raise argparse.ArgumentTypeError(f"context lags must be comma-separated integers, got {text!r}") from None
-    if any(lag <= 0 for lag in lags):
-        raise argparse.ArgumentTypeError(f"context lags must be positive, got {text!r}")
-    return lags
+        raise argparse.ArgumentTypeError(
+            f"context lags must be comma-separated positive integers, got {text!r}"
+        ) from None
 
 
 def run(args: argparse.Namespace) -> int:

@@ -32,6 +32,13 @@ def context_names(lags: Sequence[int] = ()) -> tuple[str, ...]:
     return (*FRAME_NAMES, *(f"{name}_lag{lag}" for lag in lags for name in FRAME_NAMES))
 
 
+def check_lags(lags: Sequence[int]) -> tuple[int, ...]:
+    """Context lags as a tuple, refusing any that is not a positive integer (steps back)."""
+    if any(not isinstance(lag, int) or isinstance(lag, bool) or lag <= 0 for lag in lags):
+        raise ValueError(f"context lags must be positive integers, got {list(lags)}")
+    return tuple(lags)
+
+
 class ContextWindow:
     """The sensed context of each control step: its frame followed by the frames `lags` steps before it (the
     episode's first frame while the episode is younger than a lag). A shift that shows in how the interaction
@@ -39,9 +46,7 @@ class ContextWindow:
     frame alone."""
 
     def __init__(self, lags: Sequence[int] = ()) -> None:
-        if any(not isinstance(lag, int) or lag <= 0 for lag in lags):
-            raise ValueError(f"context lags must be positive integers, got {list(lags)}")
-        self.lags = tuple(lags)
+        self.lags = check_lags(lags)
         self.names = context_names(self.lags)
         self._frames: deque[np.ndarray] = deque(maxlen=max(self.lags, default=0) + 1)
 
