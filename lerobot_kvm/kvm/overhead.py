@@ -14,6 +14,7 @@ rotations: a drift slower than one rotation cancels in them, where it only shift
 
 import statistics
 import time
+from collections.abc import Callable
 from typing import Any
 
 import torch
@@ -31,11 +32,20 @@ def paired_ratio(blocks: list[float], off_blocks: list[float]) -> float:
     return statistics.median(b / o for b, o in zip(blocks, off_blocks, strict=True))
 
 
-def _time_calls(fn: Any, n: int) -> list[float]:
+def _synchronizer(device: torch.device) -> Callable[[], None]:
+    """An accelerator runs kernels asynchronously: a call has taken its time once its device is idle again."""
+    if device.type == "cuda":
+        return lambda: torch.cuda.synchronize(device)
+    return lambda: None
+
+
+def _time_calls(fn: Callable[[], Any], n: int, sync: Callable[[], None]) -> list[float]:
     out = []
     for _ in range(n):
+        sync()
         t = time.perf_counter()
         fn()
+        sync()
         out.append(time.perf_counter() - t)
     return out
 
@@ -54,6 +64,8 @@ def measure_overhead(
     blocks: dict[str, list[float]] = {m: [] for m in MODES}  # per rotation: the block's median call latency
     step_blocks: dict[str, list[float]] = {m: [] for m in MODES}  # per rotation: the median control step
     n_action = policy.config.n_action_steps
+    device = policy.query_fingerprint.device
+    sync = _synchronizer(device)
     gate_open: dict[str, bool] = {}
     try:
         for mode in MODES:
@@ -71,10 +83,10 @@ def measure_overhead(
         for _ in range(steps // block):
             for mode in MODES:
                 _set_mode(policy, mode)
-                timed = _time_calls(lambda: policy.predict_action_chunk(batch), block)
+                timed = _time_calls(lambda: policy.predict_action_chunk(batch), block, sync)
                 calls[mode] += timed
                 blocks[mode].append(statistics.median(timed))
-                steps_timed = [t / n_action for t in _time_calls(chunk_of_steps, max(1, block // n_action))]
+                steps_timed = [t / n_action for t in _time_calls(chunk_of_steps, max(1, block // n_action), sync)]
                 control[mode] += steps_timed
                 step_blocks[mode].append(statistics.median(steps_timed))
     finally:
@@ -99,5 +111,5 @@ def measure_overhead(
         "n_skills": policy.n_skills,
         "batch_size": int(next(v for v in batch.values() if isinstance(v, torch.Tensor)).shape[0]),
         "threads": torch.get_num_threads(),
-        "device": str(policy.query_fingerprint.device),
+        "device": str(device),
     }

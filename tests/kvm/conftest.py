@@ -8,6 +8,7 @@ import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_kvm.kvm.configuration import KvmConfig
+from lerobot_kvm.kvm.online import make_demonstration
 from lerobot_kvm.policy import CodaKvmConfig, CodaKvmPolicy
 
 IMAGE_KEY = "observation.images.front"
@@ -89,19 +90,70 @@ def make_policy_fn(**overrides: Any) -> CodaKvmPolicy:
     return CodaKvmPolicy(tiny_config(**overrides))
 
 
+def on_device(batch: dict[str, Any], device: torch.device | str) -> dict[str, Any]:
+    """What LeRobot's preprocessor does last: the batch's tensors on the policy's device."""
+    return {k: v.to(device) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
+
+
 def run_attempt(policy: CodaKvmPolicy, task: str, steps: int = 6, seed: int = 0, shift: float = 0.0):
     """Drive select_action on random observations (context offset by `shift`); returns the trace."""
     policy.reset()
     for t in range(steps):
         batch = tiny_batch(policy.config, batch_size=1, task=task, seed=seed * 100 + t, with_action=False)
         batch[CONTEXT_KEY] = batch[CONTEXT_KEY] + shift
-        policy.select_action(batch)
+        policy.select_action(on_device(batch, policy.config.device))
     return policy.kvm_trace()
+
+
+def demonstration(config: CodaKvmConfig, steps: int = 5) -> dict[str, Any]:
+    """A corrective demonstration of random steps that names no skill: a failure with it makes a knowledge gap."""
+    per_step = []
+    for t in range(steps):
+        b = on_device(tiny_batch(config, batch_size=1, task=EGG, seed=50 + t), config.device)
+        b["action"] = b["action"][:, 0]
+        per_step.append(b)
+    return make_demonstration(per_step)
+
+
+def busy_policy(device: str = "cpu") -> CodaKvmPolicy:
+    """A policy whose KVM has used every kind of memory: offline training with dataset labels, a failure with a
+    demonstration (a new skill), a success with interventions, another success, a pruned skill."""
+    policy = make_policy_fn(kvm=kvm_config(gate_k=2.5, gate_min_count=4), device=device).to(device)
+    policy.kvm_set_episode_labels(
+        [
+            {"episode_index": 0, "skill": "firm_grasp", "outcome": "success", "variant": "prior"},
+            {"episode_index": 1, "skill": "firm_grasp", "outcome": "failure", "variant": "prior"},
+        ]
+    )
+    policy.train()
+    optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=1e-3)
+    for i in range(3):
+        batch = tiny_batch(policy.config, task=STONE, seed=i)
+        batch["episode_index"] = torch.tensor([0, 0, 0, 1])
+        loss, _ = policy.forward(on_device(batch, device))
+        loss.backward()
+        optimizer.step()
+        optimizer.zero_grad()
+    policy.eval()
+    policy.begin_new_skill("gentle_grasp")
+    report = policy.kvm_feedback("catastrophe", run_attempt(policy, EGG, steps=4), demonstration(policy.config), 3)
+    trace = run_attempt(policy, EGG, steps=4)
+    for tele in trace.telemetry:
+        tele.validity[:, report["culprit"]] = 0.0
+    policy.kvm_feedback("success", trace)
+    policy.kvm_feedback("success", run_attempt(policy, STONE, steps=4, seed=3))
+    policy.kvm_prune_skill(1)
+    return policy
 
 
 @pytest.fixture
 def make_policy() -> Callable[..., CodaKvmPolicy]:
     return make_policy_fn
+
+
+@pytest.fixture
+def make_busy_policy() -> Callable[..., CodaKvmPolicy]:
+    return busy_policy
 
 
 @pytest.fixture

@@ -9,11 +9,9 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from lerobot_kvm.kvm.online import make_demonstration
 from lerobot_kvm.policy import CodaKvmPolicy
 
 EGG = "pick up the egg"
-STONE = "pick up the stone"
 MEMORY = (
     "kvm.gate.window.data",
     "kvm.gate.window.count",
@@ -36,51 +34,8 @@ MEMORY = (
 )
 
 
-def demonstration(config, make_batch, steps: int = 5) -> dict:
-    per_step = []
-    for t in range(steps):
-        b = make_batch(config, batch_size=1, task=EGG, seed=50 + t)
-        b["action"] = b["action"][:, 0]
-        per_step.append(b)
-    return make_demonstration(per_step)  # unnamed: the failure makes a knowledge-gap skill
-
-
-def busy_policy(make_policy, make_batch, make_kvm_config, attempt) -> CodaKvmPolicy:
-    """A policy whose KVM has used every kind of memory."""
-    policy = make_policy(kvm=make_kvm_config(gate_k=2.5, gate_min_count=4))
-    policy.kvm_set_episode_labels(
-        [
-            {"episode_index": 0, "skill": "firm_grasp", "outcome": "success", "variant": "prior"},
-            {"episode_index": 1, "skill": "firm_grasp", "outcome": "failure", "variant": "prior"},
-        ]
-    )
-    policy.train()
-    optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=1e-3)
-    for i in range(3):
-        batch = make_batch(policy.config, task=STONE, seed=i)
-        batch["episode_index"] = torch.tensor([0, 0, 0, 1])
-        loss, _ = policy.forward(batch)
-        loss.backward()
-        optimizer.step()
-        optimizer.zero_grad()
-    policy.eval()
-    policy.begin_new_skill("gentle_grasp")
-    report = policy.kvm_feedback(
-        "catastrophe", attempt(policy, EGG, steps=4), demonstration(policy.config, make_batch), 3
-    )
-    trace = attempt(policy, EGG, steps=4)
-    for tele in trace.telemetry:
-        tele.validity[:, report["culprit"]] = 0.0
-    policy.kvm_feedback("success", trace)
-    policy.kvm_feedback("success", attempt(policy, STONE, steps=4, seed=3))
-    policy.kvm_prune_skill(1)
-    return policy
-
-
-def test_every_piece_of_kvm_memory_survives_save_and_load(
-    make_policy, make_batch, make_kvm_config, attempt, tmp_path
-) -> None:
-    policy = busy_policy(make_policy, make_batch, make_kvm_config, attempt)
+def test_every_piece_of_kvm_memory_survives_save_and_load(make_busy_policy, make_batch, tmp_path) -> None:
+    policy = make_busy_policy()
     kvm = policy.kvm
     assert len(kvm.gate.window) and len(kvm.safe_offline) and len(kvm.fail_offline)
     assert len(kvm.safe_online) and len(kvm.fail_online) and kvm.hypotheses.ids()
@@ -107,10 +62,8 @@ def test_every_piece_of_kvm_memory_survives_save_and_load(
         assert torch.equal(torch.nan_to_num(a), torch.nan_to_num(b)), name
 
 
-def test_learning_continues_identically_after_a_round_trip(
-    make_policy, make_batch, make_kvm_config, attempt, tmp_path
-) -> None:
-    policy = busy_policy(make_policy, make_batch, make_kvm_config, attempt)
+def test_learning_continues_identically_after_a_round_trip(make_busy_policy, attempt, tmp_path) -> None:
+    policy = make_busy_policy()
     policy.save_pretrained(tmp_path)
     loaded = CodaKvmPolicy.from_pretrained(tmp_path)
     for p in (policy, loaded):
