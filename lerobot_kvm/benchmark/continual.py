@@ -216,9 +216,11 @@ class ContinualRun:
         launcher: Sequence[str] = (),
         config_path: str = "",
         only: Sequence[str] | None = None,
+        device: str = "cpu",
     ) -> None:
         """`only`: names of the methods to run now; the results of the others, if an earlier invocation finished
-        them, are kept in `cl_results.json`."""
+        them, are kept in `cl_results.json`. `device`: where every `lerobot-train` and `lerobot-eval` runs the
+        policy."""
         if only is not None:
             unknown = sorted(set(only) - {m.name for m in config.methods})
             if unknown:
@@ -227,6 +229,7 @@ class ContinualRun:
         self.methods = [m for m in config.methods if only is None or m.name in only]
         self.out = Path(output_dir)
         self.launcher = list(launcher)
+        self.device = device
         self.config_path = config_path
         self.dataset_root = Path(config.dataset_root or f"datasets/kvm_cl_{config.name}")
         self.results_path = self.out / "cl_results.json"
@@ -291,6 +294,7 @@ class ContinualRun:
             policy=policy,
             episodes=episodes,
             launcher=self.launcher,
+            device=self.device,
         )
         run_logged(cmd, stage_dir / "train.log", done=checkpoint.exists)  # the only checkpoint is the final one
         (stage_dir / TIMING).write_text(json.dumps({"train_wall_s": time.time() - start}))
@@ -324,6 +328,7 @@ class ContinualRun:
                     self.config.eval_seed,
                     instruction,
                     [*self.config.env_args, *extra],
+                    self.device,
                 )
                 run_logged(cmd, eval_dir / f"{variant}_{instruction}.log")
             info = json.loads(info_path.read_text())
@@ -419,6 +424,7 @@ class ContinualRun:
             "dataset_root": str(self.dataset_root),
             "seeds": {"train": self.config.seed, "record": self.config.seed, "eval": self.config.eval_seed},
             "launcher": shlex.join(self.launcher),
+            "device": self.device,
             "methods": {m.name: merged[m.name] for m in self.config.methods if m.name in merged},
             "versions": _versions(),
             "wall_time_s": time.time() - start,

@@ -36,7 +36,7 @@ from tqdm import tqdm
 from ..envs.env import KvmObsolescenceEnv
 from ..envs.scenario import SCENARIOS
 from ..kvm.configuration import KvmConfig
-from ..kvm.evaluation import expert_rollout, run_attempt
+from ..kvm.evaluation import expert_rollout, policy_processors, run_attempt
 from ..kvm.online import chunk_targets, skill_by_name
 from ..kvm.validity_check import CONTEXT, shift_step
 from .continual import ContinualRun, SequenceConfig, read_config
@@ -103,26 +103,28 @@ def episode_seed(base: int, run: int, pass_: int, index: int, offset: int = 0) -
 
 # ---------------------------------------------------------------------------- policies
 def load_policy(
-    method: str, checkpoint: Path, weights: Path | None = None, kvm: dict[str, Any] | None = None
+    method: str,
+    checkpoint: Path,
+    weights: Path | None = None,
+    kvm: dict[str, Any] | None = None,
+    device: str = "cpu",
 ) -> tuple[Any, Any, Any]:
-    """(policy, preprocessor, postprocessor) of a method: the policy from its pool checkpoint (or from `weights`,
-    the state a resumed run had reached), the processors always from the pool checkpoint. `kvm`: settings over
-    the checkpoint's KVM config, under the method's own switches."""
+    """(policy, preprocessor, postprocessor) of a method on `device`: the policy from its pool checkpoint (or from
+    `weights`, the state a resumed run had reached), the processors always from the pool checkpoint. `kvm`:
+    settings over the checkpoint's KVM config, under the method's own switches."""
     from lerobot.configs.policies import PreTrainedConfig
-    from lerobot.policies.factory import make_pre_post_processors
 
+    config = PreTrainedConfig.from_pretrained(weights or checkpoint)
+    config.device = device
     if method in KVM_METHODS:
-        from ..policy import CodaKvmPolicy
+        from ..policy import CodaKvmPolicy as policy_class
 
-        config = PreTrainedConfig.from_pretrained(weights or checkpoint)
         config.kvm = replace(config.kvm, **{**(kvm or {}), **KVM_METHODS[method]})
-        policy = CodaKvmPolicy.from_pretrained(weights or checkpoint, config=config)
     else:
-        from lerobot.policies.act.modeling_act import ACTPolicy
-
-        policy = ACTPolicy.from_pretrained(weights or checkpoint)
+        from lerobot.policies.act.modeling_act import ACTPolicy as policy_class
+    policy = policy_class.from_pretrained(weights or checkpoint, config=config)
     policy.eval()
-    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(checkpoint))
+    pre, post = policy_processors(policy, checkpoint)
     return policy, pre, post
 
 
@@ -248,12 +250,15 @@ class Benchmark:
         config_path: str = "",
         launcher: Sequence[str] = (),
         progress: bool = True,
+        device: str = "cpu",
     ) -> None:
-        """`launcher`: the multi-process launcher of the pool's `lerobot-train` stages (see `train-continual`)."""
+        """`launcher`: the multi-process launcher of the pool's `lerobot-train` stages (see `train-continual`);
+        `device`: where the pool trains and every method runs (its timings are that device's)."""
         self.config = config
         self.out = Path(output_dir)
         self.config_path = config_path
         self.launcher = list(launcher)
+        self.device = device
         self.progress = progress
         self.sequence_path = Path(config.sequence)
         self.sequence = SequenceConfig.from_json(self.sequence_path)
@@ -271,7 +276,9 @@ class Benchmark:
     # ------------------------------------------------------------------ pool
     def grow_pool(self) -> tuple[dict[str, Any], dict[str, Path]]:
         """The continual-learning sequence (resumable), and the pool checkpoint of each method family."""
-        pool = ContinualRun(self.sequence, self.out / "pool", self.launcher, str(self.sequence_path), self.pool_methods)
+        pool = ContinualRun(
+            self.sequence, self.out / "pool", self.launcher, str(self.sequence_path), self.pool_methods, self.device
+        )
         results = pool.run()
         checkpoints = {}
         if self.config.kvm_method in self.pool_methods:
@@ -290,7 +297,7 @@ class Benchmark:
         done, out, weights = self._resume(partial)
         if out is None:
             out = {"method": method, "run": run, "records": [], "probes": [], "feedback": [], "wall_time_s": 0.0}
-        policy, pre, post = load_policy(method, checkpoint, weights, cfg.kvm)
+        policy, pre, post = load_policy(method, checkpoint, weights, cfg.kvm, self.device)
         if bar is not None:
             bar.update(done * len(cfg.scenarios))
         for pass_ in range(done + 1, cfg.passes + 1):
@@ -508,6 +515,7 @@ class Benchmark:
             "methods": methods,
             "overhead": overhead,
             "seeds": {"benchmark": cfg.seed, "pool": self.sequence.seed},
+            "device": self.device,
             "versions": pool_results["versions"],
             "wall_time_s": time.time() - start,
         }
@@ -525,9 +533,8 @@ class Benchmark:
             return json.loads(path.read_text())
         from ..cli.overhead import observation_inputs
         from ..kvm.overhead import measure_overhead
-        from ..policy import CodaKvmPolicy
 
-        policy = CodaKvmPolicy.from_pretrained(checkpoint)
+        policy, _, _ = load_policy("coda_kvm", checkpoint, device=self.device)  # the checkpoint's own KVM settings
         lags = tuple(self.sequence.context_lags)
         batch, source = observation_inputs(
             policy, checkpoint, self.config.scenarios[0], "prior", self.config.seed, lags

@@ -107,7 +107,8 @@ def overhead_table(overhead: dict[str, Any] | None) -> list[str]:
     lines = _table(["", "KVM off (backbone)", "gate closed", "gate open"], rows)
     lines.append(
         f"KVM state {overhead['kvm_state_mb']:.1f} MiB of the policy's {overhead['policy_state_mb']:.1f} MiB; "
-        f"{overhead['threads']} threads, {overhead['calls_per_mode']} calls per mode, inputs: {overhead['inputs']}."
+        f"device {overhead.get('device', 'cpu')}, {overhead['threads']} threads, {overhead['calls_per_mode']} calls "
+        f"per mode, inputs: {overhead['inputs']}."
     )
     return [*lines, ""]
 

@@ -18,7 +18,7 @@ def run(args: argparse.Namespace) -> int:
         config.dataset_root = args.dataset_root
     out = Path(args.output_dir)
     launcher = shlex.split(args.launcher) if args.launcher else []
-    results = Benchmark(config, out, args.config, launcher).run()
+    results = Benchmark(config, out, args.config, launcher, device=args.device).run()
     print()
     print((out / "report.md").read_text())
     print(f"results: {out / 'results.json'}  ({results['wall_time_s'] / 60:.1f} min)")
@@ -33,4 +33,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--runs", type=int, help="override the number of runs R")
     p.add_argument("--dataset-root", help="the pool sequence's dataset (default datasets/kvm_cl_<sequence name>)")
     p.add_argument("--launcher", help="multi-process launcher for the pool's lerobot-train stages (as train-continual)")
+    p.add_argument(
+        "--device", default="cpu", help="torch device of the pool's training and of every method (e.g. cuda)"
+    )
     p.set_defaults(func=run)

@@ -116,9 +116,11 @@ def train_command(
     episodes: Sequence[int] | None = None,
     extra: Sequence[str] = (),
     launcher: Sequence[str] = (),
+    device: str = "cpu",
 ) -> list[str]:
     """`lerobot-train` on a local dataset (optionally a subset of its episodes); `policy` names the policy
-    (`--policy.type=...` or `--policy.path=...`), `launcher` prefixes a multi-process launcher.
+    (`--policy.type=...` or `--policy.path=...`), `launcher` prefixes a multi-process launcher, `device` is
+    torch's (`cpu`, `cuda`, ...).
 
     Under a launcher every rank loads its batches in its own process (no DataLoader worker): the ranks
     already fill the cores (torchrun gives each one thread), and a worker's shutdown at exit can leave a rank
@@ -136,7 +138,7 @@ def train_command(
         f"--dataset.repo_id={repo_id}",
         f"--dataset.root={dataset_root}",
         "--policy.push_to_hub=false",
-        "--policy.device=cpu",
+        f"--policy.device={device}",
         f"--output_dir={output_dir}",
         f"--steps={steps}",
         f"--batch_size={batch_size}",
@@ -160,8 +162,9 @@ def eval_command(
     seed: int,
     instruction: str = "variant",
     extra: Sequence[str] = (),
+    device: str = "cpu",
 ) -> list[str]:
-    """`lerobot-eval` of a checkpoint on scenario(s) `task` of the simulated suite."""
+    """`lerobot-eval` of a checkpoint on scenario(s) `task` of the simulated suite, the policy on `device`."""
     return [
         lerobot_bin("lerobot-eval"),
         f"--policy.path={policy_path}",
@@ -172,7 +175,7 @@ def eval_command(
         f"--eval.n_episodes={episodes}",
         f"--eval.batch_size={min(episodes, 10)}",
         "--eval.use_async_envs=false",
-        "--policy.device=cpu",
+        f"--policy.device={device}",
         f"--output_dir={output_dir}",
         f"--seed={seed}",
         *extra,

@@ -15,12 +15,10 @@ def observation_inputs(
     import torch
 
     if any(policy_path.glob("policy_preprocessor*.json")):
-        from lerobot.policies.factory import make_pre_post_processors
-
         from ..envs.env import KvmObsolescenceEnv
-        from ..kvm.evaluation import observation_batch
+        from ..kvm.evaluation import observation_batch, policy_processors
 
-        preprocessor, _ = make_pre_post_processors(policy.config, pretrained_path=str(policy_path))
+        preprocessor, _ = policy_processors(policy, policy_path)
         env = KvmObsolescenceEnv(task=task, variant=variant, context_lags=context_lags)
         try:
             obs, _ = env.reset(seed=seed)
@@ -39,14 +37,12 @@ def give_failures(
     """One attempt of the policy on each scenario's shifted variant, its outcome given back through the feedback
     API, as in deployment: a failed attempt puts its contexts in the KVM's failure memory, so that the gate-open
     step is timed with the nearest-neighbour risk model searching them (a skill without failures has none)."""
-    from lerobot.policies.factory import make_pre_post_processors
-
     from ..envs.env import KvmObsolescenceEnv
-    from ..kvm.evaluation import run_attempt
+    from ..kvm.evaluation import policy_processors, run_attempt
 
     if not any(policy_path.glob("policy_preprocessor*.json")):
         raise FileNotFoundError(f"--failures runs the policy in the scenarios: {policy_path} has no processors")
-    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(policy_path))
+    pre, post = policy_processors(policy, policy_path)
     given = []
     for scenario in scenarios:
         env = KvmObsolescenceEnv(task=scenario, variant="shifted", context_lags=context_lags)
@@ -61,6 +57,7 @@ def give_failures(
 
 def run(args: argparse.Namespace) -> int:
     import torch
+    from lerobot.configs.policies import PreTrainedConfig
 
     from ..kvm.overhead import measure_overhead
     from ..policy import CodaKvmPolicy
@@ -71,8 +68,9 @@ def run(args: argparse.Namespace) -> int:
     path = Path(args.policy_path)
     if not (path / "model.safetensors").exists():
         raise FileNotFoundError(f"{path} is not a coda_kvm checkpoint (no model.safetensors)")
-    kwargs = {"device": args.device} if args.device else {}
-    policy = CodaKvmPolicy.from_pretrained(path, **kwargs)
+    config = PreTrainedConfig.from_pretrained(path)
+    config.device = args.device or config.device
+    policy = CodaKvmPolicy.from_pretrained(path, config=config)
     lags = args.context_lags
     failures = give_failures(policy, path, args.failures.split(","), args.seed, lags) if args.failures else []
     batch, source = observation_inputs(policy, path, args.task, args.variant, args.seed, lags)

@@ -14,7 +14,7 @@ def run(args: argparse.Namespace) -> int:
         config.dataset_root = args.dataset_root
     only = [m.strip() for m in args.methods.split(",") if m.strip()] if args.methods else None
     launcher = shlex.split(args.launcher) if args.launcher else []
-    report = ContinualRun(config, Path(args.output_dir), launcher, args.config, only).run()
+    report = ContinualRun(config, Path(args.output_dir), launcher, args.config, only, args.device).run()
     print()
     print((Path(args.output_dir) / "cl_report.md").read_text())
     print(f"results: {Path(args.output_dir) / 'cl_results.json'}  ({report['wall_time_s'] / 60:.1f} min)")
@@ -31,4 +31,5 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--launcher",
         help="multi-process launcher prefixed to every lerobot-train, e.g. 'torchrun --nproc_per_node=2'",
     )
+    p.add_argument("--device", default="cpu", help="torch device of every lerobot-train and lerobot-eval (e.g. cuda)")
     p.set_defaults(func=run)

@@ -38,14 +38,20 @@ def run(args: argparse.Namespace) -> int:
     if not policy_path.exists():
         print("[2/3] training coda_kvm with lerobot-train")
         shutil.rmtree(train_dir, ignore_errors=True)
-        run_logged(train_command(dataset_root, repo_id, train_dir, args.steps, args.batch_size, args.seed))
+        run_logged(
+            train_command(dataset_root, repo_id, train_dir, args.steps, args.batch_size, args.seed, device=args.device)
+        )
     else:
         print(f"[2/3] reusing trained policy {policy_path}")
 
     print("[3/3] evaluating with lerobot-eval")
     eval_dir = out / f"eval_{args.variant}"
     shutil.rmtree(eval_dir, ignore_errors=True)
-    run_logged(eval_command(policy_path, eval_dir, "egg_vs_stone", args.variant, args.eval_episodes, args.seed))
+    run_logged(
+        eval_command(
+            policy_path, eval_dir, "egg_vs_stone", args.variant, args.eval_episodes, args.seed, device=args.device
+        )
+    )
     info = json.loads((eval_dir / "eval_info.json").read_text())
     overall = info["overall"]
     catastrophes = sum(r < 0 for task in info["per_task"] for r in task["metrics"]["sum_rewards"])
@@ -67,5 +73,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--eval-episodes", type=int, default=20)
     p.add_argument("--variant", default="prior")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", default="cpu", help="torch device of lerobot-train and lerobot-eval (e.g. cuda)")
     p.add_argument("--fresh", action="store_true", help="retrain and re-evaluate even if outputs exist")
     p.set_defaults(func=run)

@@ -36,6 +36,15 @@ def auroc(hazardous: Sequence[float] | Tensor, safe: Sequence[float] | Tensor) -
     return float(u / (len(h) * len(s)))
 
 
+def policy_processors(policy: Any, checkpoint: Any) -> tuple[Processor, Processor]:
+    """The checkpoint's pre/post-processors, with observations moved to the device the policy runs on now (a
+    checkpoint records the device it was trained on), as `lerobot-eval` does."""
+    from lerobot.policies.factory import make_pre_post_processors
+
+    overrides = {"device_processor": {"device": str(policy.config.device)}}
+    return make_pre_post_processors(policy.config, pretrained_path=str(checkpoint), preprocessor_overrides=overrides)
+
+
 def observation_batch(observation: dict[str, Any], task: str) -> dict[str, Any]:
     """One environment observation in LeRobot's policy format (before the policy's preprocessor)."""
     from lerobot.envs.utils import preprocess_observation

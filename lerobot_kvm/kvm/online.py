@@ -87,9 +87,9 @@ def make_demonstration(steps: Sequence[dict[str, Any]], skill: str | None = None
 
 
 def chunk_targets(actions: Tensor, chunk: int) -> tuple[Tensor, Tensor]:
-    """Action chunks [T, chunk, A] from a trajectory [T, A] and their padding mask [T, chunk]."""
-    t_len = actions.shape[0]
-    idx = torch.arange(t_len).unsqueeze(1) + torch.arange(chunk).unsqueeze(0)
+    """Action chunks [T, chunk, A] from a trajectory [T, A] and their padding mask [T, chunk], on its device."""
+    t_len, device = actions.shape[0], actions.device
+    idx = torch.arange(t_len, device=device).unsqueeze(1) + torch.arange(chunk, device=device).unsqueeze(0)
     pad = idx >= t_len
     return actions[idx.clamp(max=t_len - 1)], pad
 

@@ -76,6 +76,19 @@ def test_a_windowed_sequence_records_evaluates_and_trains_with_its_context_lags(
     assert not any("context_frames" in a for a in run._policy_args(config.methods[1], None, None))
 
 
+def test_a_sequence_trains_every_stage_on_its_device(tmp_path, monkeypatch):
+    from lerobot_kvm.benchmark import continual
+
+    commands = []
+    monkeypatch.setattr(continual, "run_logged", lambda cmd, *args, **kwargs: commands.append(cmd))
+    method = MethodSpec("coda_kvm")
+    run = continual.ContinualRun(SequenceConfig("d", [TaskSpec("book")], [method]), tmp_path, device="cuda")
+    (tmp_path / "stage").mkdir()
+    run._train(method, tmp_path / "stage", run._policy_args(method, None, "book"), [0, 1])
+    (cmd,) = commands
+    assert "--policy.device=cuda" in cmd and "--policy.device=cpu" not in cmd
+
+
 def _identical(a: torch.nn.Module, b: torch.nn.Module) -> bool:
     sa, sb = a.state_dict(), b.state_dict()
     return sa.keys() == sb.keys() and all(torch.equal(v, sb[k]) for k, v in sa.items())

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from lerobot_kvm.cli import lerobot_commands
-from lerobot_kvm.cli.lerobot_commands import program_name, run_logged, train_command
+from lerobot_kvm.cli.lerobot_commands import eval_command, program_name, run_logged, train_command
 
 
 def _flag(cmd: list[str], name: str) -> str:
@@ -39,6 +39,13 @@ def test_under_a_launcher_each_rank_loads_its_own_batches():
     assert Path(cmd[0]).name == "torchrun" and cmd[1:3] == launcher[1:]
     assert Path(cmd[3]).name == "lerobot-train" and program_name(cmd) == "torchrun"
     assert _flag(cmd, "num_workers") == "0"
+
+
+def test_training_and_evaluation_run_the_policy_on_the_named_device():
+    for device in ("cpu", "cuda"):
+        kwargs = {"device": device} if device != "cpu" else {}  # cpu by default
+        assert _flag(train_command(Path("data"), "local/x", Path("out"), 10, 4, 0, **kwargs), "policy.device") == device
+        assert _flag(eval_command(Path("p"), Path("out"), "book", "prior", 2, 0, **kwargs), "policy.device") == device
 
 
 def _alive(pid: int) -> bool:

@@ -86,3 +86,10 @@ def test_feedback_on_cuda_learns_and_its_checkpoint_loads_on_the_cpu(make_busy_p
     torch.testing.assert_close(
         policy.predict_action_chunk(to(batch, CUDA)).cpu(), loaded.predict_action_chunk(batch), atol=1e-5, rtol=1e-4
     )
+
+
+def test_a_trajectorys_action_chunks_and_padding_stay_on_its_device() -> None:
+    from lerobot_kvm.kvm.online import chunk_targets
+
+    target, pad = chunk_targets(torch.randn(5, 3, device=CUDA), 4)
+    assert target.device.type == pad.device.type == "cuda" and pad[-1, 1:].all() and not pad[0].any()

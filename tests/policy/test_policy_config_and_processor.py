@@ -1,6 +1,7 @@
 """Config validation, LeRobot registration, and the pre/post-processing pipeline (the task string survives)."""
 
 import dataclasses
+import json
 
 import pytest
 import torch
@@ -106,3 +107,24 @@ def test_preprocessor_keeps_task_and_normalizes_context(make_config, make_batch,
     action = policy.select_action(batched)
     act = stats["action"]
     torch.testing.assert_close(post2(action), action * act["std"] + act["mean"])
+
+
+def test_processors_of_a_checkpoint_follow_the_policy_to_its_device(make_config, make_batch, make_policy, tmp_path):
+    """A checkpoint trained on another device (its saved preprocessor names `cuda`) runs where the policy now is."""
+    from lerobot_kvm.kvm.evaluation import policy_processors
+
+    config = make_config()
+    pre, post = make_coda_kvm_pre_post_processors(config, dataset_stats=stats_for(config))
+    pre.save_pretrained(tmp_path)
+    post.save_pretrained(tmp_path)
+    saved = tmp_path / "policy_preprocessor.json"
+    pipeline = json.loads(saved.read_text())
+    (device_step,) = [s for s in pipeline["steps"] if s.get("registry_name") == "device_processor"]
+    assert device_step["config"]["device"] == "cpu"
+    device_step["config"]["device"] = "cuda"
+    saved.write_text(json.dumps(pipeline))
+    policy = make_policy()
+    pre2, _ = policy_processors(policy, tmp_path)
+    out = pre2(dict(make_batch(config)))
+    assert out["observation.context"].device == policy.query_fingerprint.device
+    assert torch.isfinite(policy.forward(out)[0])
