@@ -173,6 +173,17 @@ class SequenceConfig:
         return [f"--env.context_lags=[{','.join(map(str, self.context_lags))}]"] if self.context_lags else []
 
 
+def check_dataset_window(dataset_root: Path, context_lags: Sequence[int]) -> None:
+    """A reused dataset must have been recorded with the sequence's context window: its observations' context
+    has one frame per lag, and the policy is built for exactly that many."""
+    recorded = list(load_labels(dataset_root)["spec"].get("context_lags", []))
+    if recorded != list(context_lags):
+        raise ValueError(
+            f"dataset {dataset_root} was recorded with context_lags={recorded}, the sequence asks for "
+            f"{list(context_lags)}: give the sequence its own dataset (--dataset-root or `dataset_root`)"
+        )
+
+
 def task_episodes(dataset_root: Path, tasks: Sequence[TaskSpec]) -> list[list[int]]:
     """The dataset's episode indices of each task, from the recorder's labels."""
     episodes = load_labels(dataset_root)["episodes"]
@@ -387,6 +398,7 @@ class ContinualRun:
         if not self.dataset_root.exists():
             print(f"recording {self.dataset_root}")
             record_dataset(self.config.recording_spec(), self.dataset_root, repo_id=self.config.repo_id)
+        check_dataset_window(self.dataset_root, self.config.context_lags)
         episodes = task_episodes(self.dataset_root, self.config.tasks)
         pretrain_episodes = task_episodes(self.dataset_root, self.config.pretrain_tasks)
         n_jobs = sum(

@@ -76,6 +76,18 @@ def test_a_windowed_sequence_records_evaluates_and_trains_with_its_context_lags(
     assert not any("context_frames" in a for a in run._policy_args(config.methods[1], None, None))
 
 
+def test_a_dataset_recorded_with_another_window_is_refused(tmp_path):
+    from lerobot_kvm.benchmark.continual import check_dataset_window
+    from lerobot_kvm.datasets.recorder import LABELS_FILE
+
+    labels = tmp_path / LABELS_FILE
+    labels.parent.mkdir(parents=True)
+    labels.write_text(json.dumps({"spec": {"context_lags": [1, 4]}, "episodes": []}))
+    check_dataset_window(tmp_path, [1, 4])
+    with pytest.raises(ValueError, match=r"recorded with context_lags=\[1, 4\], the sequence asks for \[\]"):
+        check_dataset_window(tmp_path, [])
+
+
 def test_a_sequence_trains_every_stage_on_its_device(tmp_path, monkeypatch):
     from lerobot_kvm.benchmark import continual
 
