@@ -152,6 +152,11 @@ def make_policy() -> Callable[..., CodaKvmPolicy]:
 
 
 @pytest.fixture
+def to_device() -> Callable[..., dict[str, Any]]:
+    return on_device
+
+
+@pytest.fixture
 def make_busy_policy() -> Callable[..., CodaKvmPolicy]:
     return busy_policy
 

@@ -3,11 +3,11 @@ written there loads on the CPU with the same weights and memory (skipped where n
 
 import copy
 from collections.abc import Iterator
-from typing import Any
 
 import pytest
 import torch
 
+from lerobot_kvm.kvm.online import chunk_targets
 from lerobot_kvm.policy import CodaKvmPolicy
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
@@ -26,16 +26,16 @@ def _full_precision() -> Iterator[None]:
     torch.backends.cuda.matmul.allow_tf32 = matmul
 
 
-def to(batch: dict[str, Any], device: torch.device) -> dict[str, Any]:
-    return {k: v.to(device) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
+def assert_same(on_gpu: torch.Tensor, on_cpu: torch.Tensor) -> None:
+    torch.testing.assert_close(on_gpu.cpu(), on_cpu, atol=1e-5, rtol=1e-4)
 
 
-def test_a_training_step_on_cuda_keeps_every_tensor_there(make_policy, make_batch) -> None:
+def test_a_training_step_on_cuda_keeps_every_tensor_there(make_policy, make_batch, to_device) -> None:
     policy = make_policy(device="cuda").to(CUDA)  # as LeRobot's factory places a policy
     policy.train()
     optimizer = torch.optim.AdamW(policy.get_optim_params(), lr=1e-3)
     before = {k: v.clone() for k, v in policy.state_dict().items()}
-    batch = to(make_batch(policy.config, task=STONE), CUDA)
+    batch = to_device(make_batch(policy.config, task=STONE), CUDA)
     batch["episode_index"] = torch.tensor([0, 0, 1, 1], device=CUDA)
     loss, metrics = policy.forward(batch)
     assert loss.device.type == "cuda" and torch.isfinite(loss)
@@ -47,23 +47,25 @@ def test_a_training_step_on_cuda_keeps_every_tensor_there(make_policy, make_batc
     assert {t.device.type for t in policy.state_dict().values()} == {"cuda"}
 
 
-def test_acting_on_cuda_matches_the_cpu(make_policy, make_batch) -> None:
+def test_acting_on_cuda_matches_the_cpu(make_policy, make_batch, to_device) -> None:
     cpu = make_policy()
     gpu = copy.deepcopy(cpu).to(CUDA)
     gpu.config.device = "cuda"
     cpu.eval()
     gpu.eval()
     batch = make_batch(cpu.config, task=[EGG, STONE, EGG, STONE], with_action=False)
-    chunk = gpu.predict_action_chunk(to(batch, CUDA))
+    chunk = gpu.predict_action_chunk(to_device(batch, CUDA))
     assert chunk.device.type == "cuda"
-    torch.testing.assert_close(chunk.cpu(), cpu.predict_action_chunk(batch), atol=1e-5, rtol=1e-4)
-    torch.testing.assert_close(gpu.kvm_validity(to(batch, CUDA)).cpu(), cpu.kvm_validity(batch), atol=1e-5, rtol=1e-4)
+    assert_same(chunk, cpu.predict_action_chunk(batch))
+    assert_same(gpu.kvm_validity(to_device(batch, CUDA)), cpu.kvm_validity(batch))
     one = make_batch(cpu.config, batch_size=1, task=EGG, with_action=False)
-    torch.testing.assert_close(gpu.select_action(to(one, CUDA)).cpu(), cpu.select_action(one), atol=1e-5, rtol=1e-4)
-    torch.testing.assert_close(gpu.kvm_telemetry.validity.cpu(), cpu.kvm_telemetry.validity, atol=1e-5, rtol=1e-4)
+    assert_same(gpu.select_action(to_device(one, CUDA)), cpu.select_action(one))
+    assert_same(gpu.kvm_telemetry.validity, cpu.kvm_telemetry.validity)
 
 
-def test_feedback_on_cuda_learns_and_its_checkpoint_loads_on_the_cpu(make_busy_policy, make_batch, tmp_path) -> None:
+def test_feedback_on_cuda_learns_and_its_checkpoint_loads_on_the_cpu(
+    make_busy_policy, make_batch, to_device, tmp_path
+) -> None:
     """The whole online path (offline training, a failure with a corrective demonstration that makes a new skill,
     interventions, pruning) on the device, then the checkpoint on the CPU: same state, same actions."""
     policy = make_busy_policy("cuda")  # whether the failure makes a skill of its own depends on the random stream
@@ -83,13 +85,9 @@ def test_feedback_on_cuda_learns_and_its_checkpoint_loads_on_the_cpu(make_busy_p
     assert restored_summary.pop("gate") == pytest.approx(summary.pop("gate"), rel=1e-5)
     assert restored_summary == summary
     batch = make_batch(loaded.config, task=EGG, with_action=False)
-    torch.testing.assert_close(
-        policy.predict_action_chunk(to(batch, CUDA)).cpu(), loaded.predict_action_chunk(batch), atol=1e-5, rtol=1e-4
-    )
+    assert_same(policy.predict_action_chunk(to_device(batch, CUDA)), loaded.predict_action_chunk(batch))
 
 
 def test_a_trajectorys_action_chunks_and_padding_stay_on_its_device() -> None:
-    from lerobot_kvm.kvm.online import chunk_targets
-
     target, pad = chunk_targets(torch.randn(5, 3, device=CUDA), 4)
     assert target.device.type == pad.device.type == "cuda" and pad[-1, 1:].all() and not pad[0].any()
