@@ -32,6 +32,7 @@ from ..datasets.recorder import RecordingSpec, RecordItem, load_labels, record_d
 from ..envs.scenario import make_scenario
 from ..envs.sensing import check_lags
 from .cl_metrics import cl_metrics, joint_metrics
+from .resume import check_settings
 
 CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"
 TIMING = "timing.json"  # a finished stage's training wall time, kept for runs that resume
@@ -258,6 +259,17 @@ class ContinualRun:
             raise FileNotFoundError(f"{checkpoint} missing: run the sequence's method {owner!r} first")
         return checkpoint
 
+    def _check_settings(self) -> None:
+        """Refuse to resume stages, evaluations or kept results made with other settings: the sequence's (every
+        field but its methods) in the output directory, each method's in its own, for the methods run now and
+        those whose earlier results are kept."""
+        sequence = {k: v for k, v in asdict(self.config).items() if k != "methods"}
+        check_settings(self.out, sequence | {"dataset_root": str(self.dataset_root)}, "a sequence's results")
+        running = {m.name for m in self.methods}
+        for method in self.config.methods:
+            if method.name in running or (self.out / method.name).exists():
+                check_settings(self.out / method.name, asdict(method), f"method {method.name}'s stages")
+
     # ------------------------------------------------------------------ stages
     def _stage_dir(self, method_name: str, k: int) -> Path:
         return self.out / method_name / f"stage_{k}_{self.config.tasks[k].name}"
@@ -399,6 +411,7 @@ class ContinualRun:
             print(f"recording {self.dataset_root}")
             record_dataset(self.config.recording_spec(), self.dataset_root, repo_id=self.config.repo_id)
         check_dataset_window(self.dataset_root, self.config.context_lags)
+        self._check_settings()
         episodes = task_episodes(self.dataset_root, self.config.tasks)
         pretrain_episodes = task_episodes(self.dataset_root, self.config.pretrain_tasks)
         n_jobs = sum(

@@ -40,6 +40,7 @@ from ..kvm.evaluation import expert_rollout, policy_processors, run_attempt
 from ..kvm.online import chunk_targets, skill_by_name
 from ..kvm.validity_check import CONTEXT, shift_step
 from .continual import ContinualRun, SequenceConfig, read_config
+from .resume import check_settings
 
 # Methods evaluated on the `coda_kvm` pool checkpoint, with the KVM settings that make them.
 KVM_METHODS: dict[str, dict[str, Any]] = {
@@ -50,6 +51,9 @@ KVM_METHODS: dict[str, dict[str, Any]] = {
 }
 PEER_METHODS = ("act",)
 CONTROL_KINDS = ("prior", "control")
+# Settings an output directory may change between invocations: which methods and runs (each method's runs are
+# kept apart), the plots drawn, and the name; the pool's own settings are checked by its sequence run.
+FREE_SETTINGS = ("name", "methods", "runs", "trace_plots", "sequence", "dataset_root")
 
 
 @dataclass
@@ -481,6 +485,8 @@ class Benchmark:
 
         start = time.time()
         self.out.mkdir(parents=True, exist_ok=True)
+        kept = {k: v for k, v in asdict(self.config).items() if k not in FREE_SETTINGS}
+        check_settings(self.out, kept, "a benchmark's episodes and overhead")
         pool_results, checkpoints = self.grow_pool()
         cfg = self.config
         total = len(cfg.methods) * cfg.runs * cfg.passes * len(cfg.scenarios)

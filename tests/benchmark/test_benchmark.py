@@ -1,6 +1,7 @@
 """The benchmark: config validation (fast) and a tiny real run of every method from the tiny pool (slow)."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -230,3 +231,19 @@ def test_kvm_settings_reach_every_validity_method_under_its_own_switches(tiny_po
         assert policy.config.kvm.smart_gate == switches.get("smart_gate", True), method
         for key, value in switches.items():
             assert getattr(policy.config.kvm, key) == value, (method, key)
+
+
+def test_a_resumed_benchmark_refuses_settings_that_change_its_episodes(tmp_path, monkeypatch):
+    class PoolReached(Exception):
+        pass
+
+    def grow_pool(self):
+        raise PoolReached
+
+    monkeypatch.setattr(Benchmark, "grow_pool", grow_pool)
+    config = BenchmarkConfig("b", str(CONFIGS / "cl_tiny.json"), ["book"], methods=["coda_kvm"], passes=2)
+    for same in (config, replace(config, methods=["coda_kvm", "act"], runs=3, trace_plots=0)):
+        with pytest.raises(PoolReached):  # more methods or runs extend the directory
+            Benchmark(same, tmp_path, progress=False).run()
+    with pytest.raises(ValueError, match=r"a benchmark's episodes and overhead made with other settings \(passes"):
+        Benchmark(replace(config, passes=3), tmp_path, progress=False).run()

@@ -145,3 +145,18 @@ def test_training_minutes_add_pretraining_and_stages_and_skip_evaluation_only_me
     assert training_minutes({"pretrain_train_wall_s": None, "train_wall_s": [120.0]}) == 2.0
     assert training_minutes({"pretrain_train_wall_s": None, "train_wall_s": []}) is None  # evaluated only
     assert training_minutes({"pretrain_train_wall_s": 5.0, "train_wall_s": [None, 3.0]}) is None
+
+
+def test_a_resumed_sequence_refuses_other_settings_of_the_sequence_or_of_a_method(tmp_path):
+    from lerobot_kvm.benchmark.continual import ContinualRun
+
+    methods = [MethodSpec("coda_kvm"), MethodSpec("act", policy="act")]
+    ContinualRun(SequenceConfig("s", [TaskSpec("book")], methods), tmp_path, only=["coda_kvm"])._check_settings()
+    # another method joins later; the first one's settings are unchanged
+    ContinualRun(SequenceConfig("s", [TaskSpec("book")], methods), tmp_path)._check_settings()
+    with pytest.raises(ValueError, match=r"a sequence's results made with other settings \(eval_episodes: 10 -> 5\)"):
+        ContinualRun(SequenceConfig("s", [TaskSpec("book")], methods, eval_episodes=5), tmp_path)._check_settings()
+    # a method whose stages exist is checked even when it is not run now: its kept results are reported
+    changed = [MethodSpec("coda_kvm", steps_per_stage=100), methods[1]]
+    with pytest.raises(ValueError, match=r"method coda_kvm's stages made with other settings \(steps_per_stage"):
+        ContinualRun(SequenceConfig("s", [TaskSpec("book")], changed), tmp_path, only=["act"])._check_settings()
