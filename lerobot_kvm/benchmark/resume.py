@@ -17,22 +17,27 @@ def _describe(value: Any) -> str:
     return "(absent)" if value is _ABSENT else json.dumps(value)
 
 
-def check_settings(directory: Path, settings: dict[str, Any], what: str) -> None:
+def differences(kept: dict[str, Any], current: dict[str, Any]) -> str:
+    """'key: old -> new; ...' for every top-level setting that differs ('' when none does)."""
+    keys = sorted(kept.keys() | current.keys())
+    pairs = [(k, kept.get(k, _ABSENT), current.get(k, _ABSENT)) for k in keys]
+    return "; ".join(f"{k}: {_describe(old)} -> {_describe(new)}" for k, old, new in pairs if old != new)
+
+
+def check_settings(
+    directory: Path, settings: dict[str, Any], what: str, remedy: str = "give another output directory"
+) -> None:
     """Record `settings` (JSON-able) in `directory` on the first call; afterwards refuse different ones, naming
-    each changed setting. `what` says what the directory holds, for the error."""
+    each changed setting. `what` says what the directory holds, `remedy` how to start afresh, for the error."""
     path = Path(directory) / SETTINGS
     current = json.loads(json.dumps(settings))  # as it reads back: tuples become lists
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(current, indent=2))
         return
-    kept = json.loads(path.read_text())
-    changed = [k for k in sorted(kept.keys() | current.keys()) if kept.get(k, _ABSENT) != current.get(k, _ABSENT)]
+    changed = differences(json.loads(path.read_text()), current)
     if changed:
-        diff = "; ".join(
-            f"{k}: {_describe(kept.get(k, _ABSENT))} -> {_describe(current.get(k, _ABSENT))}" for k in changed
-        )
         raise ValueError(
-            f"{directory} holds {what} made with other settings ({diff}). Resume it with the settings it was "
-            f"made with, or give another output directory."
+            f"{directory} holds {what} made with other settings ({changed}). Resume it with the settings it was "
+            f"made with, or {remedy}."
         )

@@ -8,12 +8,24 @@ import argparse
 import json
 import shutil
 import time
+from dataclasses import asdict
 from pathlib import Path
 
-from ..datasets.recorder import RecordingSpec, record_dataset
+from ..benchmark.resume import check_settings, differences
+from ..datasets.recorder import RecordingSpec, load_labels, record_dataset
 from .lerobot_commands import eval_command, run_logged, train_command
 
 DEFAULT_SPEC = Path(__file__).resolve().parents[2] / "datasets" / "specs" / "egg_vs_stone_demo.json"
+
+
+def check_recording(root: Path, spec: RecordingSpec) -> None:
+    """Refuse a dataset recorded from another spec (or other `--episodes`): training on it would silently use
+    other episodes than asked for."""
+    changed = differences(load_labels(root)["spec"], json.loads(json.dumps(asdict(spec))))
+    if changed:
+        raise ValueError(
+            f"dataset {root} was recorded with other settings ({changed}): delete it or give --dataset-root"
+        )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -31,7 +43,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"[1/3] recording {dataset_root}")
         record_dataset(spec, dataset_root, repo_id=repo_id)
     else:
+        check_recording(dataset_root, spec)
         print(f"[1/3] reusing recorded dataset {dataset_root}")
+    trained_with = {"dataset_root": str(dataset_root), "steps": args.steps, "batch_size": args.batch_size}
+    check_settings(out, trained_with | {"seed": args.seed}, "a walkthrough's policy", "pass --fresh")
 
     train_dir = out / "train"
     policy_path = train_dir / "checkpoints" / "last" / "pretrained_model"
