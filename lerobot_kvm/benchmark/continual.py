@@ -407,11 +407,11 @@ class ContinualRun:
     def run(self) -> dict[str, Any]:
         start = time.time()
         self.out.mkdir(parents=True, exist_ok=True)
+        self._check_settings()  # before anything is recorded or trained for settings it would refuse
         if not self.dataset_root.exists():
             print(f"recording {self.dataset_root}")
             record_dataset(self.config.recording_spec(), self.dataset_root, repo_id=self.config.repo_id)
         check_dataset_window(self.dataset_root, self.config.context_lags)
-        self._check_settings()
         episodes = task_episodes(self.dataset_root, self.config.tasks)
         pretrain_episodes = task_episodes(self.dataset_root, self.config.pretrain_tasks)
         n_jobs = sum(

@@ -39,14 +39,15 @@ def run(args: argparse.Namespace) -> int:
     repo_id = f"local/{spec.name}"
     if args.fresh:
         shutil.rmtree(out, ignore_errors=True)
+    trained_with = {"dataset_root": str(dataset_root), "recording": asdict(spec), "steps": args.steps}
+    trained_with |= {"batch_size": args.batch_size, "seed": args.seed}
+    check_settings(out, trained_with, "a walkthrough's policy", "pass --fresh")
     if not dataset_root.exists():
         print(f"[1/3] recording {dataset_root}")
         record_dataset(spec, dataset_root, repo_id=repo_id)
     else:
         check_recording(dataset_root, spec)
         print(f"[1/3] reusing recorded dataset {dataset_root}")
-    trained_with = {"dataset_root": str(dataset_root), "steps": args.steps, "batch_size": args.batch_size}
-    check_settings(out, trained_with | {"seed": args.seed}, "a walkthrough's policy", "pass --fresh")
 
     train_dir = out / "train"
     policy_path = train_dir / "checkpoints" / "last" / "pretrained_model"
