@@ -261,10 +261,11 @@ class ContinualRun:
 
     def _check_settings(self) -> None:
         """Refuse to resume stages, evaluations or kept results made with other settings: the sequence's (every
-        field but its methods) in the output directory, each method's in its own, for the methods run now and
-        those whose earlier results are kept."""
+        field but its methods, and the device) in the output directory, each method's in its own, for the methods
+        run now and those whose earlier results are kept."""
         sequence = {k: v for k, v in asdict(self.config).items() if k != "methods"}
-        check_settings(self.out, sequence | {"dataset_root": str(self.dataset_root)}, "a sequence's results")
+        sequence |= {"dataset_root": str(self.dataset_root), "device": self.device}  # results name one device
+        check_settings(self.out, sequence, "a sequence's results")
         running = {m.name for m in self.methods}
         for method in self.config.methods:
             if method.name in running or (self.out / method.name).exists():

@@ -485,8 +485,8 @@ class Benchmark:
 
         start = time.time()
         self.out.mkdir(parents=True, exist_ok=True)
-        kept = {k: v for k, v in asdict(self.config).items() if k not in FREE_SETTINGS}
-        check_settings(self.out, kept, "a benchmark's episodes and overhead")
+        kept = {k: v for k, v in asdict(self.config).items() if k not in FREE_SETTINGS} | {"device": self.device}
+        check_settings(self.out, kept, "a benchmark's episodes and overhead")  # its timings name one device
         pool_results, checkpoints = self.grow_pool()
         cfg = self.config
         total = len(cfg.methods) * cfg.runs * cfg.passes * len(cfg.scenarios)

@@ -247,3 +247,5 @@ def test_a_resumed_benchmark_refuses_settings_that_change_its_episodes(tmp_path,
             Benchmark(same, tmp_path, progress=False).run()
     with pytest.raises(ValueError, match=r"a benchmark's episodes and overhead made with other settings \(passes"):
         Benchmark(replace(config, passes=3), tmp_path, progress=False).run()
+    with pytest.raises(ValueError, match=r"\(device: \"cpu\" -> \"cuda\"\)"):  # its timings name one device
+        Benchmark(config, tmp_path, progress=False, device="cuda").run()

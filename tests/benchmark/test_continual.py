@@ -156,6 +156,8 @@ def test_a_resumed_sequence_refuses_other_settings_of_the_sequence_or_of_a_metho
     ContinualRun(SequenceConfig("s", [TaskSpec("book")], methods), tmp_path)._check_settings()
     with pytest.raises(ValueError, match=r"a sequence's results made with other settings \(eval_episodes: 10 -> 5\)"):
         ContinualRun(SequenceConfig("s", [TaskSpec("book")], methods, eval_episodes=5), tmp_path)._check_settings()
+    with pytest.raises(ValueError, match=r"\(device: \"cpu\" -> \"cuda\"\)"):
+        ContinualRun(SequenceConfig("s", [TaskSpec("book")], methods), tmp_path, device="cuda")._check_settings()
     # a method whose stages exist is checked even when it is not run now: its kept results are reported
     changed = [MethodSpec("coda_kvm", steps_per_stage=100), methods[1]]
     with pytest.raises(ValueError, match=r"method coda_kvm's stages made with other settings \(steps_per_stage"):
