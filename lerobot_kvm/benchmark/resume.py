@@ -17,8 +17,21 @@ def _describe(value: Any) -> str:
     return "(absent)" if value is _ABSENT else json.dumps(value)
 
 
+def _flat(value: Any, path: str = "") -> dict[str, Any]:
+    """Nested settings by path ('recording.items[0].episodes'), so that a difference names the setting itself.
+    A list of plain values stays whole (`scenarios`, `context_lags`)."""
+    if isinstance(value, dict):
+        items = [(f"{path}.{k}" if path else str(k), v) for k, v in value.items()]
+    elif isinstance(value, list) and any(isinstance(v, dict | list) for v in value):
+        items = [(f"{path}[{i}]", v) for i, v in enumerate(value)]
+    else:
+        return {path: value}
+    return {k: v for key, item in items for k, v in _flat(item, key).items()}
+
+
 def differences(kept: dict[str, Any], current: dict[str, Any]) -> str:
-    """'key: old -> new; ...' for every top-level setting that differs ('' when none does)."""
+    """'setting: old -> new; ...' for every setting that differs, nested ones by path ('' when none does)."""
+    kept, current = _flat(kept), _flat(current)
     keys = sorted(kept.keys() | current.keys())
     pairs = [(k, kept.get(k, _ABSENT), current.get(k, _ABSENT)) for k in keys]
     return "; ".join(f"{k}: {_describe(old)} -> {_describe(new)}" for k, old, new in pairs if old != new)

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from lerobot_kvm.benchmark.resume import SETTINGS, check_settings
+from lerobot_kvm.benchmark.resume import SETTINGS, check_settings, differences
 
 
 def test_the_first_call_records_the_settings_and_the_same_ones_resume(tmp_path):
@@ -21,3 +21,10 @@ def test_changed_added_and_removed_settings_are_refused_by_name(tmp_path):
     with pytest.raises(ValueError, match=r"lags: \(absent\) -> \[1\]; root: null -> \(absent\)"):
         check_settings(tmp_path, {"steps": 3, "lags": [1]}, "a run")
     assert json.loads((tmp_path / SETTINGS).read_text()) == {"steps": 3, "root": None}  # never overwritten
+
+
+def test_a_nested_difference_is_named_by_its_path():
+    kept = {"recording": {"items": [{"episodes": 2, "skill": "a"}], "lags": [1, 2]}, "steps": 3}
+    current = {"recording": {"items": [{"episodes": 3, "skill": "a"}], "lags": [1, 4]}, "steps": 3}
+    assert differences(kept, current) == "recording.items[0].episodes: 2 -> 3; recording.lags: [1, 2] -> [1, 4]"
+    assert differences(kept, kept) == ""
