@@ -33,6 +33,7 @@ after an attempt:
 """
 
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import torch
@@ -47,6 +48,7 @@ from .attribution import (
     knowledge_gap,
     normalised_relevance,
 )
+from .experience import ExperienceViews
 from .fusion import fuse_weights, plain_scale
 from .telemetry import KvmTrace
 
@@ -301,6 +303,21 @@ def _similar(kvm: Any, mu: Tensor, hypothesis_id: int) -> Tensor:
     return kvm.gate.similar(mu, kvm.encode(torch.cat(rows))[0])
 
 
+@dataclass
+class _Attempt:
+    """One reported attempt, encoded once: what the failure and the success branches of the feedback read."""
+
+    c_raw: Tensor  # [T, raw_dim] its contexts
+    mu: Tensor  # [T, latent] their codes
+    opened: Tensor  # [T] bool: sigma_c^2 above tau
+    relevance: Tensor  # [T, S] normalised per-skill relevance
+    intervention: Tensor  # [T, S] bool: a candidate suppressed (v < tau_v)
+    dominant: Tensor  # [T] the skill with the largest share of the fused prompt
+    active: Tensor  # [S] bool: skills in force (a gap skill begun by the feedback joins them)
+    task: str
+    gradient_steps: int
+
+
 def apply_feedback(
     policy: "CodaKvmPolicy",
     outcome: str,
@@ -338,7 +355,9 @@ def apply_feedback(
     candidate = active.unsqueeze(0) & (relevance >= cfg.candidate_min_alpha)
     intervention = candidate & (v_used < cfg.tau_v)
     share = (w_used * alphas).abs()
-    dominant = share.argmax(-1)
+    attempt = _Attempt(
+        c_raw, mu, sigma2 > tau, relevance, intervention, share.argmax(-1), active, task or tasks[0], steps
+    )
 
     # The skill the CL core proposed for this interaction: the culprit rule, whatever the outcome (a failure with a
     # corrective demonstration verifies it, `_attribute`). Charging every candidate instead would retire each
@@ -348,13 +367,12 @@ def apply_feedback(
     k = cfg.fail_context_steps
     attribution = _attribute(policy, frames if failed else None, candidate[-k:].any(0), proposed)
     proposed = attribution["culprit"]
-    task_name = task or tasks[0]
-    kvm.metabolism.record(task_name, torch.arange(n_skills, device=device) == proposed, failed, intervention.any(0))
+    kvm.metabolism.record(attempt.task, torch.arange(n_skills, device=device) == proposed, failed, intervention.any(0))
     report: dict[str, Any] = {
         "outcome": outcome,
-        "task": task_name,
+        "task": attempt.task,
         "steps": len(trace),
-        "gate_open_steps": int((sigma2 > tau).sum()),
+        "gate_open_steps": int(attempt.opened.sum()),
         "intervention_steps": int(intervention.any(-1).sum()),
         "gradient_steps": steps,
         "hypothesis": None,
@@ -362,121 +380,183 @@ def apply_feedback(
         "confirmed": [],
         "new_skill": None,
     }
-
     if failed:
-        culprit = proposed
-        context = sigma2 > tau
-        context[-k:] = True
-        experience = kvm.safe_experience(culprit)
-        context &= ~experience.known(c_raw, cfg.known_safe_quantile)
-        if cfg.fail_context_last:
-            context[-cfg.fail_context_last :] = True
-        context |= experience.departed(c_raw, cfg.departure_radius)
-        hypothesis_id = None
-        for h in kvm.hypotheses.ids(skill=culprit):
-            if bool(_similar(kvm, mu[context], h).any()):
-                hypothesis_id = h
-                break
-        suppressed = bool(intervention[context, culprit].any())
-        if hypothesis_id is None:
-            hypothesis_id = kvm.hypotheses.open(culprit, c_raw[-1])
-        else:
-            kvm.hypotheses.record_failure(hypothesis_id, suppressed)
-        permanent = kvm.hypotheses.is_confirmed(hypothesis_id)
-        failure_context = c_raw[context]
-        fail_c = [failure_context]
-        kvm.add_fail(failure_context, torch.full((len(failure_context),), culprit), hypothesis_id, permanent)
-        safe_c: list[Tensor] = []
-        safe_s: list[Tensor] = []
-        demo_skill = None
-        gap = None
-        demo_negatives: list[int] = []
-        if frames is not None:
-            named = skill_by_name(policy, demonstration.get("skill"))
-            if cfg.gap_on_failure and steps and named is None:  # a demonstrated skill the pool has is no gap
-                gap = _gap_skill(policy, hypothesis_id, culprit, relevance[context], active, task_name)
-                active = policy.kvm_active_skills()
-            with torch.no_grad():
-                d_query = policy.encode_query(frames["task"])
-                d_raw = kvm.raw_context(frames[policy.config.context_key].to(device), d_query)
-                d_rel = normalised_relevance(policy.pool.skill_relevance(d_query), active)
-            if gap is not None:
-                demo_skill = gap["index"]
-            elif named is not None:
-                demo_skill = named
-            elif attribution["agrees"] is not None and bool(active[attribution["agrees"]]):
-                demo_skill = attribution["agrees"]
-            else:
-                demo_skill = _demo_skill(d_rel, culprit, active)
-            if demo_skill is not None:
-                # The demonstrated strategy is the one meant for the contexts the culprit failed in: they are safe
-                # for it (for a new gap skill, the whole failed attempt). Otherwise those contexts would be
-                # hazardous for the culprit and unknown, so judged invalid, for the very skill that corrects it.
-                seen = torch.cat([d_raw, c_raw if gap is not None else failure_context])
-                skills = torch.full((len(seen),), demo_skill)
-                kvm.add_safe(seen, skills, routine=False, demo=True)
-                safe_c.append(seen)
-                safe_s.append(skills.to(device))
-            unknown = ~experience.known(d_raw, cfg.known_safe_quantile) | experience.departed(
-                d_raw, cfg.departure_radius
-            )
-            demo_negatives = _steps(unknown)
-            if bool(unknown.any()):
-                kvm.add_fail(d_raw[unknown], torch.full((int(unknown.sum()),), culprit), hypothesis_id, permanent)
-                fail_c.append(d_raw[unknown])
-        fails = torch.cat(fail_c)
-        new_fail = (fails, torch.full((len(fails),), culprit, device=device))
-        new_safe = (torch.cat(safe_c), torch.cat(safe_s)) if safe_c else (c_raw[:0], dominant[:0])
-        metrics = kvm.train_online(steps, active, new_safe, new_fail) if steps else {}
-        if gap is not None:
-            gap |= _focus(policy, gap["index"], frames, d_query, steps)  # the budget the baselines fine-tune with
-            report["new_skill"] = gap
-        report.update(
-            culprit=culprit,
-            attribution={k: v for k, v in attribution.items() if k != "culprit"},
-            hypothesis=kvm.hypotheses.info(hypothesis_id),
-            negatives_added=len(fails),
-            failure_context_steps=_steps(context),
-            demo_negative_steps=demo_negatives,
-            positives_added=len(new_safe[0]),
-            demo_skill=demo_skill,
-            suppressed_at_failure=suppressed,
-            kvm_metrics=metrics,
-        )
+        report |= _learn_from_failure(policy, attempt, attribution, frames, demonstration)
     else:
-        routine = not bool(intervention.any())
-        kvm.add_safe(c_raw, dominant, routine=routine)
-        report["routine"] = routine
-        new_skill_seed: list[tuple[int, int]] = []
-        for h in kvm.hypotheses.ids(state=OPEN):
-            info = kvm.hypotheses.info(h)
-            i = info["skill"]
-            if i >= n_skills or not bool(intervention[:, i].any()):
-                continue
-            steps_i = torch.nonzero(intervention[:, i]).flatten()
-            similar = _similar(kvm, mu[steps_i], h)
-            if not bool(similar.any()):
-                continue
-            matched = steps_i[similar]
-            necessary = bool(relevance[matched, i].max() > cfg.tau_high)
-            confirmed = kvm.hypotheses.record_intervention(h, necessary)
-            report["interventions"].append({"hypothesis": h, "skill": i, "necessary": necessary, "steps": len(matched)})
-            if confirmed:
-                n_perm = kvm.make_permanent(h)
-                gap = knowledge_gap(relevance[matched], i, active, cfg.gap_alpha)
-                report["confirmed"].append({"hypothesis": h, "skill": i, "permanent_negatives": n_perm, "gap": gap})
-                if gap:
-                    new_skill_seed.append((h, i))
-        metrics = {}
-        if new_skill_seed:
-            h, culprit = new_skill_seed[0]
-            report["new_skill"] = _create_skill(policy, h, culprit, task_name, trace, demonstration, steps)
-        elif steps:
-            metrics = kvm.train_online(steps, active, (c_raw, dominant), (c_raw[:0], dominant[:0]))
-        report["kvm_metrics"] = metrics
+        report |= _learn_from_success(policy, attempt, trace, demonstration)
     report["pruned"] = kvm.metabolism.check_prune(policy.n_skills)
     report["fcrnc"] = kvm.metabolism.fcrnc()[: policy.n_skills].tolist()
     report["srnc"] = kvm.metabolism.srnc()[: policy.n_skills].tolist()
+    return report
+
+
+@dataclass
+class _Failure:
+    """A failure's case against its culprit, and what the feedback learns from it."""
+
+    culprit: int
+    context: Tensor  # [T] bool: the attempt's failure context
+    hypothesis_id: int
+    permanent: bool  # the hypothesis is confirmed: its negatives are permanent
+    experience: ExperienceViews  # the culprit's
+    negatives: list[Tensor]  # contexts that become h_fail negatives for the culprit
+    positives: list[tuple[Tensor, Tensor]] = field(default_factory=list)  # (contexts, skills) learned safe
+    demo_skill: int | None = None
+    gap: dict[str, Any] | None = None  # the gap skill the demonstration seeds
+    demo_negative_steps: list[int] = field(default_factory=list)
+    demo_query: Tensor | None = None
+
+
+def _learn_from_failure(
+    policy: "CodaKvmPolicy",
+    attempt: _Attempt,
+    attribution: dict[str, Any],
+    frames: dict[str, Any] | None,
+    demonstration: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """A failure: its context against the culprit's safe experience, a new or strengthened hypothesis, h_fail
+    negatives, what the corrective demonstration teaches, and the feedback's gradient steps."""
+    cfg = policy.config.kvm
+    kvm = policy.kvm
+    c_raw = attempt.c_raw
+    culprit = attribution["culprit"]
+    context = attempt.opened.clone()
+    context[-cfg.fail_context_steps :] = True
+    experience = kvm.safe_experience(culprit)
+    context &= ~experience.known(c_raw, cfg.known_safe_quantile)
+    if cfg.fail_context_last:
+        context[-cfg.fail_context_last :] = True
+    context |= experience.departed(c_raw, cfg.departure_radius)
+    hypothesis_id = None
+    for h in kvm.hypotheses.ids(skill=culprit):
+        if bool(_similar(kvm, attempt.mu[context], h).any()):
+            hypothesis_id = h
+            break
+    suppressed = bool(attempt.intervention[context, culprit].any())
+    if hypothesis_id is None:
+        hypothesis_id = kvm.hypotheses.open(culprit, c_raw[-1])
+    else:
+        kvm.hypotheses.record_failure(hypothesis_id, suppressed)
+    permanent = kvm.hypotheses.is_confirmed(hypothesis_id)
+    failure_context = c_raw[context]
+    kvm.add_fail(failure_context, torch.full((len(failure_context),), culprit), hypothesis_id, permanent)
+    failure = _Failure(culprit, context, hypothesis_id, permanent, experience, [failure_context])
+    if frames is not None:
+        _learn_from_demonstration(policy, attempt, failure, attribution, frames, demonstration)
+    steps = attempt.gradient_steps
+    fails = torch.cat(failure.negatives)
+    new_fail = (fails, torch.full((len(fails),), culprit, device=c_raw.device))
+    if failure.positives:
+        new_safe = (torch.cat([c for c, _ in failure.positives]), torch.cat([s for _, s in failure.positives]))
+    else:
+        new_safe = (c_raw[:0], attempt.dominant[:0])
+    metrics = kvm.train_online(steps, attempt.active, new_safe, new_fail) if steps else {}
+    report: dict[str, Any] = {}
+    if failure.gap is not None:  # the gradient budget the baselines fine-tune with
+        report["new_skill"] = failure.gap | _focus(policy, failure.gap["index"], frames, failure.demo_query, steps)
+    return report | dict(
+        culprit=culprit,
+        attribution={k: v for k, v in attribution.items() if k != "culprit"},
+        hypothesis=kvm.hypotheses.info(hypothesis_id),
+        negatives_added=len(fails),
+        failure_context_steps=_steps(context),
+        demo_negative_steps=failure.demo_negative_steps,
+        positives_added=len(new_safe[0]),
+        demo_skill=failure.demo_skill,
+        suppressed_at_failure=suppressed,
+        kvm_metrics=metrics,
+    )
+
+
+def _learn_from_demonstration(
+    policy: "CodaKvmPolicy",
+    attempt: _Attempt,
+    failure: _Failure,
+    attribution: dict[str, Any],
+    frames: dict[str, Any],
+    demonstration: dict[str, Any],
+) -> None:
+    """What a failure's corrective demonstration teaches: the skill it demonstrates (a gap skill begun for it, the
+    skill it names, the one the attribution agrees on, or the most relevant alternative) is safe in its contexts
+    and in the failure context; where it leaves the culprit's safe experience it adds negatives for the culprit."""
+    cfg = policy.config.kvm
+    kvm = policy.kvm
+    culprit = failure.culprit
+    device = attempt.c_raw.device
+    named = skill_by_name(policy, demonstration.get("skill"))
+    if cfg.gap_on_failure and attempt.gradient_steps and named is None:  # a demonstrated skill the pool has is no gap
+        relevance = attempt.relevance[failure.context]
+        failure.gap = _gap_skill(policy, failure.hypothesis_id, culprit, relevance, attempt.active, attempt.task)
+        attempt.active = policy.kvm_active_skills()
+    active = attempt.active
+    with torch.no_grad():
+        failure.demo_query = policy.encode_query(frames["task"])
+        d_raw = kvm.raw_context(frames[policy.config.context_key].to(device), failure.demo_query)
+        d_rel = normalised_relevance(policy.pool.skill_relevance(failure.demo_query), active)
+    if failure.gap is not None:
+        failure.demo_skill = failure.gap["index"]
+    elif named is not None:
+        failure.demo_skill = named
+    elif attribution["agrees"] is not None and bool(active[attribution["agrees"]]):
+        failure.demo_skill = attribution["agrees"]
+    else:
+        failure.demo_skill = _demo_skill(d_rel, culprit, active)
+    if failure.demo_skill is not None:
+        # The demonstrated strategy is the one meant for the contexts the culprit failed in: they are safe for it
+        # (for a new gap skill, the whole failed attempt). Otherwise those contexts would be hazardous for the
+        # culprit and unknown, so judged invalid, for the very skill that corrects it.
+        seen = torch.cat([d_raw, attempt.c_raw if failure.gap is not None else failure.negatives[0]])
+        skills = torch.full((len(seen),), failure.demo_skill)
+        kvm.add_safe(seen, skills, routine=False, demo=True)
+        failure.positives.append((seen, skills.to(device)))
+    experience = failure.experience
+    unknown = ~experience.known(d_raw, cfg.known_safe_quantile) | experience.departed(d_raw, cfg.departure_radius)
+    failure.demo_negative_steps = _steps(unknown)
+    if bool(unknown.any()):
+        n = int(unknown.sum())
+        kvm.add_fail(d_raw[unknown], torch.full((n,), culprit), failure.hypothesis_id, failure.permanent)
+        failure.negatives.append(d_raw[unknown])
+
+
+def _learn_from_success(
+    policy: "CodaKvmPolicy", attempt: _Attempt, trace: KvmTrace, demonstration: dict[str, Any] | None
+) -> dict[str, Any]:
+    """A success: safe samples for the dominant skill; interventions near an open hypothesis count for it, and a
+    confirmation with a knowledge gap creates a new skill seeded from this interaction."""
+    cfg = policy.config.kvm
+    kvm = policy.kvm
+    intervention, relevance = attempt.intervention, attempt.relevance
+    routine = not bool(intervention.any())
+    kvm.add_safe(attempt.c_raw, attempt.dominant, routine=routine)
+    report: dict[str, Any] = {"routine": routine, "interventions": [], "confirmed": []}
+    new_skill_seed: list[tuple[int, int]] = []
+    for h in kvm.hypotheses.ids(state=OPEN):
+        i = kvm.hypotheses.info(h)["skill"]
+        if i >= policy.n_skills or not bool(intervention[:, i].any()):
+            continue
+        steps_i = torch.nonzero(intervention[:, i]).flatten()
+        similar = _similar(kvm, attempt.mu[steps_i], h)
+        if not bool(similar.any()):
+            continue
+        matched = steps_i[similar]
+        necessary = bool(relevance[matched, i].max() > cfg.tau_high)
+        confirmed = kvm.hypotheses.record_intervention(h, necessary)
+        report["interventions"].append({"hypothesis": h, "skill": i, "necessary": necessary, "steps": len(matched)})
+        if confirmed:
+            n_perm = kvm.make_permanent(h)
+            gap = knowledge_gap(relevance[matched], i, attempt.active, cfg.gap_alpha)
+            report["confirmed"].append({"hypothesis": h, "skill": i, "permanent_negatives": n_perm, "gap": gap})
+            if gap:
+                new_skill_seed.append((h, i))
+    metrics = {}
+    steps = attempt.gradient_steps
+    if new_skill_seed:
+        h, culprit = new_skill_seed[0]
+        report["new_skill"] = _create_skill(policy, h, culprit, attempt.task, trace, demonstration, steps)
+    elif steps:
+        none = (attempt.c_raw[:0], attempt.dominant[:0])
+        metrics = kvm.train_online(steps, attempt.active, (attempt.c_raw, attempt.dominant), none)
+    report["kvm_metrics"] = metrics
     return report
 
 
