@@ -326,6 +326,7 @@ def apply_feedback(
     gradient_steps: int | None = None,
     task: str | None = None,
 ) -> dict[str, Any]:
+    """The feedback API's update after one attempt (see the module's description); returns what it did."""
     if outcome not in OUTCOMES:
         raise ValueError(f"outcome must be one of {OUTCOMES}, got {outcome!r}")
     if len(trace) == 0:
