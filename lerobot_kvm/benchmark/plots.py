@@ -7,6 +7,8 @@ Inputs are the benchmark's JSON-able records:
   method without the validity module, else equal-length per-control-step lists "sigma2" (may hold NaN), "tau"
   (-inf where no statistics exist yet), "gate" and "intervention" (0/1).
 * probe record: "method", "run", "pass", "scenario", and the energies "e_hazard" / "e_safe" (possibly empty).
+* `kvm-check` row: "id", "seed", "passed", and the AUROCs "auroc" (the KVM's v), "neighbour_auroc" and
+  "neighbour_auroc_history" (the references told the shift steps), each possibly None.
 
 Figures are built with matplotlib's object-oriented `Figure` and saved through the Agg canvas, never through
 `pyplot`: importing or calling this module opens no display, touches no global backend, and leaves no figure
@@ -176,6 +178,48 @@ def plot_success_by_pass(success: dict[str, dict[int, float]], path: Path) -> Pa
     ax.set_xticks(centers, [f"R{p}" for p in passes])
     ax.set_xlabel("pass")
     ax.legend(fontsize="small")
+    return _save(fig, path)
+
+
+VALIDITY_MARKERS = (  # (row key, label, marker, filled): the KVM's AUROC and the references it is read against
+    ("auroc", "KVM validity v", "o", True),
+    ("neighbour_auroc", "reference told the shift: sensed context", "s", False),
+    ("neighbour_auroc_history", "reference told the shift: sensed context + history", "^", False),
+)
+
+
+def plot_validity_check(rows: list[dict], path: Path, threshold: float = 0.95, setting: str = "") -> Path:
+    """One line per scenario: the KVM's AUROC at each seed against the nearest-neighbour references that are told
+    the shift steps, and the acceptance threshold, so a reader sees which scenarios miss and whether their sensed
+    context carries the shift at all. Scenarios are sorted by the KVM's lowest AUROC; red names fail at a seed.
+    `setting` names what was checked, in the title."""
+    if not rows:
+        raise ValueError("no kvm-check rows to plot")
+    ids = sorted({r["id"] for r in rows}, key=lambda i: min((r["auroc"] or 0.0) for r in rows if r["id"] == i))
+    seeds = sorted({r["seed"] for r in rows})
+    fig = Figure(figsize=(8, 1.2 + 0.32 * len(ids)), layout="constrained")
+    ax = fig.add_subplot()
+    offsets = {key: (j - 1) * 0.22 for j, (key, *_) in enumerate(VALIDITY_MARKERS)}
+    for key, label, marker, filled in VALIDITY_MARKERS:
+        xs, ys = [], []
+        for y, scenario in enumerate(ids):
+            for r in rows:
+                if r["id"] == scenario and r.get(key) is not None:
+                    xs.append(r[key])
+                    ys.append(y + offsets[key])
+        face = "tab:blue" if filled else "none"
+        ax.scatter(xs, ys, marker=marker, facecolors=face, edgecolors="tab:blue" if filled else "0.35", label=label)
+    ax.axvline(threshold, color="tab:red", linestyle="--", linewidth=1, label=f"threshold {threshold}")
+    ax.set_yticks(range(len(ids)), ids)
+    for tick, scenario in zip(ax.get_yticklabels(), ids, strict=True):
+        if not all(r["passed"] for r in rows if r["id"] == scenario):
+            tick.set_color("tab:red")
+    ax.invert_yaxis()
+    ax.set_xlabel("AUROC: hazardous vs safe (skill, context) pairs")
+    title = f"kvm-check: {len(ids)} scenarios, seeds {', '.join(map(str, seeds))}"
+    ax.set_title(f"{title} ({setting})" if setting else title)
+    ax.grid(axis="x", alpha=0.3)
+    ax.legend(fontsize="small", loc="best")
     return _save(fig, path)
 
 

@@ -104,22 +104,8 @@ def lag_list(text: str) -> tuple[int, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..kvm.validity_check import check_validity_suite
-
-    seeds = args.seeds
-    report = check_validity_suite(
-        resolve_tasks(args.tasks),
-        seeds=seeds,
-        episodes=args.episodes,
-        held_out=args.held_out,
-        offline_steps=(args.offline_steps, args.new_skill_steps),
-        online_encoder=args.online_encoder,
-        feedback_steps=args.feedback_steps,
-        risk_model=args.risk_model,
-        neighbour_space=args.neighbour_space,
-        context_lags=args.context_lags,
-        fail_context_last=args.fail_context_last,
-    )
+    report = json.loads(Path(args.from_json).read_text()) if args.from_json else measure(args)
+    seeds = report["seeds"]
     print(results_table(report["scenarios"], COLUMNS))
     print(LEGEND)
     if len(seeds) > 1:
@@ -132,9 +118,34 @@ def run(args: argparse.Namespace) -> int:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(report, indent=2) + "\n")
         print(f"wrote {path}")
+    if args.plot:
+        from ..benchmark.plots import plot_validity_check
+
+        lags = report["settings"].get("context_lags")
+        setting = f"context lags {', '.join(map(str, lags))}" if lags else ""
+        threshold = report["thresholds"]["min_auroc"]
+        print(f"wrote {plot_validity_check(report['scenarios'], Path(args.plot), threshold, setting)}")
     per_seed = ", ".join(f"{n} at seed {s}" for n, s in zip(report["n_pass_per_seed"], seeds, strict=True))
     print(f"{report['n_pass']}/{report['n_scenarios']} scenarios pass at every seed ({per_seed})")
     return 0
+
+
+def measure(args: argparse.Namespace) -> dict:
+    from ..kvm.validity_check import check_validity_suite
+
+    return check_validity_suite(
+        resolve_tasks(args.tasks),
+        seeds=args.seeds,
+        episodes=args.episodes,
+        held_out=args.held_out,
+        offline_steps=(args.offline_steps, args.new_skill_steps),
+        online_encoder=args.online_encoder,
+        feedback_steps=args.feedback_steps,
+        risk_model=args.risk_model,
+        neighbour_space=args.neighbour_space,
+        context_lags=args.context_lags,
+        fail_context_last=args.fail_context_last,
+    )
 
 
 def kvm_choice(p: argparse.ArgumentParser, name: str, choices: tuple[str, ...], help_text: str) -> None:
@@ -181,4 +192,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--seeds", type=seed_list, default=(0,), help="comma-separated seeds; each scenario is checked at each of them"
     )
     p.add_argument("--json", help="also write the full report to this JSON file")
+    p.add_argument("--plot", help="also draw every scenario's AUROC at each seed against the references (PNG)")
+    p.add_argument("--from-json", help="tabulate (and --plot) a report written by --json instead of measuring")
     p.set_defaults(func=run)

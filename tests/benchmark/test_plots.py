@@ -9,6 +9,7 @@ from lerobot_kvm.benchmark.plots import (
     plot_energy_histograms,
     plot_success_by_pass,
     plot_uncertainty_trace,
+    plot_validity_check,
     trace_filename,
     write_plots,
 )
@@ -170,3 +171,15 @@ def test_write_plots_is_deterministic_and_respects_max_traces(tmp_path):
     assert len(first) == 4
     assert len(write_plots(records, [], {}, tmp_path / "c", max_traces=0)) == 2
     assert len(write_plots(records, [], {}, tmp_path / "d", max_traces=10)) == 2 + 5
+
+
+def test_validity_check_plot_draws_every_scenario_with_missing_references(tmp_path):
+    rows = [
+        {"id": "drawer", "seed": 0, "passed": True, "auroc": 0.99, "neighbour_auroc": 0.98},
+        {"id": "drawer", "seed": 1, "passed": False, "auroc": 0.93, "neighbour_auroc": None},
+        {"id": "pizza", "seed": 0, "passed": True, "auroc": None, "neighbour_auroc_history": 0.97},
+    ]
+    path = plot_validity_check(rows, tmp_path / "check.png")
+    assert path.read_bytes().startswith(PNG_MAGIC)
+    with pytest.raises(ValueError, match="no kvm-check rows"):
+        plot_validity_check([], tmp_path / "none.png")
