@@ -195,7 +195,7 @@ def plot_validity_check(rows: list[dict], path: Path, threshold: float = 0.95, s
     `setting` names what was checked, in the title."""
     if not rows:
         raise ValueError("no kvm-check rows to plot")
-    ids = sorted({r["id"] for r in rows}, key=lambda i: min((r["auroc"] or 0.0) for r in rows if r["id"] == i))
+    ids = sorted({r["id"] for r in rows}, key=lambda i: min(r.get("auroc") or 0.0 for r in rows if r["id"] == i))
     seeds = sorted({r["seed"] for r in rows})
     fig = Figure(figsize=(8, 1.2 + 0.32 * len(ids)), layout="constrained")
     ax = fig.add_subplot()

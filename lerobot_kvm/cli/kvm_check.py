@@ -104,7 +104,7 @@ def lag_list(text: str) -> tuple[int, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
-    report = json.loads(Path(args.from_json).read_text()) if args.from_json else measure(args)
+    report = load_report(Path(args.from_json)) if args.from_json else measure(args)
     seeds = report["seeds"]
     print(results_table(report["scenarios"], COLUMNS))
     print(LEGEND)
@@ -128,6 +128,18 @@ def run(args: argparse.Namespace) -> int:
     per_seed = ", ".join(f"{n} at seed {s}" for n, s in zip(report["n_pass_per_seed"], seeds, strict=True))
     print(f"{report['n_pass']}/{report['n_scenarios']} scenarios pass at every seed ({per_seed})")
     return 0
+
+
+REPORT_KEYS = ("scenarios", "summary", "seeds", "n_pass", "n_pass_per_seed", "n_scenarios", "settings", "thresholds")
+
+
+def load_report(path: Path) -> dict:
+    """A report written by `--json`; one from an earlier version of the check is refused by what it lacks."""
+    report = json.loads(path.read_text())
+    missing = [k for k in REPORT_KEYS if k not in report]
+    if missing:
+        raise ValueError(f"{path} lacks {missing}: it was written by an earlier kvm-check; measure again")
+    return report
 
 
 def measure(args: argparse.Namespace) -> dict:

@@ -92,3 +92,12 @@ def test_a_saved_report_is_tabulated_and_plotted_without_measuring(tmp_path, cap
     assert args.func(args) == 0
     assert "15/18 scenarios pass at every seed (15 at seed 0, 15 at seed 1, 15 at seed 2)" in capsys.readouterr().out
     assert (tmp_path / "check.png").stat().st_size > 0
+
+
+def test_a_report_from_an_earlier_check_is_refused_by_what_it_lacks(tmp_path) -> None:
+    from lerobot_kvm.cli.kvm_check import load_report
+
+    old = tmp_path / "old.json"
+    old.write_text('{"scenarios": [], "n_pass": 0, "n_scenarios": 0}')
+    with pytest.raises(ValueError, match=r"lacks \['summary', 'seeds', .*measure again"):
+        load_report(old)
