@@ -166,6 +166,88 @@ def _after(demos: list[dict], starts: list[int]) -> list[dict]:
     return [c for c in cut if len(c["task"])]
 
 
+def _learn_prior_variant(
+    scenario_id: str,
+    episodes: int,
+    seed: int,
+    offline_steps: tuple[int, int],
+    options: dict[str, Any],
+    context_lags: tuple[int, ...],
+    workdir: str | Path | None,
+) -> tuple[Any, Any, dict[str, Any], Tensor]:
+    """Protocol steps 1-2: record the prior variant's expert episodes of both skills and train a small policy on
+    them as a task sequence would. Returns (policy, its preprocessor, the frames' contexts, which rows are the
+    prior skill's)."""
+    info = SCENARIOS[scenario_id].info
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        root = Path(tmp) / "data"
+        repo_id = f"local/kvm_validity_{scenario_id}"
+        spec = RecordingSpec(
+            name=f"kvm_validity_{scenario_id}",
+            items=[
+                RecordItem(scenario_id, "prior", info.prior_skill, episodes, "variant"),
+                RecordItem(scenario_id, "prior", info.safe_skill, episodes, "skill"),
+            ],
+            seed=seed,
+            context_lags=list(context_lags),
+        )
+        record_dataset(spec, root, repo_id=repo_id, progress=False)
+        policy = _small_policy(root, repo_id, info.prior_skill, options)
+        frames = recorded_frames(root, repo_id, policy.config)
+        labels = load_labels(root)["episodes"]
+    from ..policy import make_coda_kvm_pre_post_processors
+
+    pre, _ = make_coda_kvm_pre_post_processors(policy.config, frames["stats"])
+    prior_episodes = {e["episode_index"] for e in labels if e["skill"] == info.prior_skill}
+    is_prior = torch.tensor([int(e) in prior_episodes for e in frames["episode_index"]])
+    data = frame_contexts(frames)
+    train_on_frames(policy, frames, pre, offline_steps[0], is_prior)
+    pretrain_kvm(policy, data, steps=offline_steps[0], where=is_prior)
+    policy.begin_new_skill(info.safe_skill)
+    policy.backbone.requires_grad_(False)  # as the sequences' later stages train (`--policy.train_backbone=false`)
+    train_on_frames(policy, frames, pre, offline_steps[1], ~is_prior)
+    pretrain_kvm(policy, data, steps=offline_steps[1], where=~is_prior)
+    policy.eval()
+    return policy, pre, data, is_prior
+
+
+def _one_failure(
+    policy: Any, pre: Any, scenario_id: str, base: int, feedback_steps: int, context_lags: tuple[int, ...]
+) -> dict[str, Any]:
+    """Protocol step 3: the prior skill's expert fails on the shifted variant, and the feedback gets its trace and
+    the safe skill's corrective demonstration. Also where the shift shows in each (`shift_step` against the prior
+    variant under the same seeds), and how well the feedback labelled the shifted steps."""
+    info = SCENARIOS[scenario_id].info
+    env = KvmObsolescenceEnv(scenario_id, variant="shifted", context_lags=context_lags)
+    failed, failed_outcome = expert_rollout(env, info.prior_skill, pre, seed=base)
+    corrective, corrective_outcome = expert_rollout(
+        env, info.safe_skill, pre, seed=base + 1, policy_skill=info.safe_skill
+    )
+    env.close()
+    report = policy.kvm_feedback(
+        failed_outcome, trace_from_demonstration(failed), demonstration=corrective, gradient_steps=feedback_steps
+    )
+    twins = _rollouts(scenario_id, "prior", info.prior_skill, pre, [base], context_lags) + _rollouts(
+        scenario_id, "prior", info.safe_skill, pre, [base + 1], context_lags
+    )
+    met_from = [shift_step(t, d) for t, d in zip(twins, (failed, corrective), strict=True)]
+    recall, precision = labelling(
+        [report.get("failure_context_steps", []), report.get("demo_negative_steps", [])],
+        met_from,
+        [len(failed["task"]), len(corrective["task"])],
+    )
+    return {
+        "failed": failed,
+        "failed_outcome": failed_outcome,
+        "corrective": corrective,
+        "corrective_outcome": corrective_outcome,
+        "report": report,
+        "met_from": met_from,
+        "recall": recall,
+        "precision": precision,
+    }
+
+
 def check_validity(
     scenario_id: str,
     episodes: int = 8,
@@ -186,63 +268,21 @@ def check_validity(
     `kvm.context_frames` = 1 + their number)."""
     info = SCENARIOS[scenario_id].info
     torch.manual_seed(seed)
-    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
-        root = Path(tmp) / "data"
-        repo_id = f"local/kvm_validity_{scenario_id}"
-        spec = RecordingSpec(
-            name=f"kvm_validity_{scenario_id}",
-            items=[
-                RecordItem(scenario_id, "prior", info.prior_skill, episodes, "variant"),
-                RecordItem(scenario_id, "prior", info.safe_skill, episodes, "skill"),
-            ],
-            seed=seed,
-            context_lags=list(context_lags),
-        )
-        record_dataset(spec, root, repo_id=repo_id, progress=False)
-        options = {
-            "online_encoder": online_encoder,
-            "risk_model": risk_model,
-            "neighbour_space": neighbour_space,
-            "context_frames": 1 + len(context_lags),
-            "fail_context_last": fail_context_last,
-        }
-        policy = _small_policy(root, repo_id, info.prior_skill, options)
-        frames = recorded_frames(root, repo_id, policy.config)
-        labels = load_labels(root)["episodes"]
-    from ..policy import make_coda_kvm_pre_post_processors
-
-    pre, _ = make_coda_kvm_pre_post_processors(policy.config, frames["stats"])
-    prior_episodes = {e["episode_index"] for e in labels if e["skill"] == info.prior_skill}
-    is_prior = torch.tensor([int(e) in prior_episodes for e in frames["episode_index"]])
-    data = frame_contexts(frames)
-    train_on_frames(policy, frames, pre, offline_steps[0], is_prior)
-    pretrain_kvm(policy, data, steps=offline_steps[0], where=is_prior)
-    policy.begin_new_skill(info.safe_skill)
-    policy.backbone.requires_grad_(False)  # as the sequences' later stages train (`--policy.train_backbone=false`)
-    train_on_frames(policy, frames, pre, offline_steps[1], ~is_prior)
-    pretrain_kvm(policy, data, steps=offline_steps[1], where=~is_prior)
-    policy.eval()
-
-    env = KvmObsolescenceEnv(scenario_id, variant="shifted", context_lags=context_lags)
+    options = {
+        "online_encoder": online_encoder,
+        "risk_model": risk_model,
+        "neighbour_space": neighbour_space,
+        "context_frames": 1 + len(context_lags),
+        "fail_context_last": fail_context_last,
+    }
+    policy, pre, data, is_prior = _learn_prior_variant(
+        scenario_id, episodes, seed, offline_steps, options, context_lags, workdir
+    )
     base = seed + 10_000
-    failed, failed_outcome = expert_rollout(env, info.prior_skill, pre, seed=base)
-    corrective, corrective_outcome = expert_rollout(
-        env, info.safe_skill, pre, seed=base + 1, policy_skill=info.safe_skill
-    )
-    env.close()
-    report = policy.kvm_feedback(
-        failed_outcome, trace_from_demonstration(failed), demonstration=corrective, gradient_steps=feedback_steps
-    )
-    twins = _rollouts(scenario_id, "prior", info.prior_skill, pre, [base], context_lags) + _rollouts(
-        scenario_id, "prior", info.safe_skill, pre, [base + 1], context_lags
-    )
-    met_from = [shift_step(t, d) for t, d in zip(twins, (failed, corrective), strict=True)]
+    failure = _one_failure(policy, pre, scenario_id, base, feedback_steps, context_lags)
+    failed, corrective = failure["failed"], failure["corrective"]
+    report, met_from = failure["report"], failure["met_from"]
     met = _after([failed, corrective], met_from)
-    recall, precision = labelling(
-        [report.get("failure_context_steps", []), report.get("demo_negative_steps", [])],
-        met_from,
-        [len(failed["task"]), len(corrective["task"])],
-    )
 
     seeds = [base + 100 + i for i in range(held_out)]
     prior_prior = _rollouts(scenario_id, "prior", info.prior_skill, pre, seeds, context_lags)
@@ -271,12 +311,12 @@ def check_validity(
     row: dict[str, Any] = {
         "id": scenario_id,
         "category": info.category,
-        "failed_attempt": failed_outcome,
-        "corrective_demo": corrective_outcome,
+        "failed_attempt": failure["failed_outcome"],
+        "corrective_demo": failure["corrective_outcome"],
         "culprit": report.get("culprit"),
         "failure_steps": report.get("negatives_added"),  # contexts the feedback learned as hazardous for the culprit
-        "label_recall": recall,
-        "label_precision": precision,
+        "label_recall": failure["recall"],
+        "label_precision": failure["precision"],
         "shift_step": float(torch.tensor(start_prior, dtype=torch.float32).mean()),
         "v_prior_median": float(v_prior.median()),
         "v_prior_above_0.9": float((v_prior > V_HIGH).float().mean()),
