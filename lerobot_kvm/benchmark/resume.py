@@ -29,9 +29,14 @@ def _flat(value: Any, path: str = "") -> dict[str, Any]:
     return {k: v for key, item in items for k, v in _flat(item, key).items()}
 
 
+def _as_read_back(settings: dict[str, Any]) -> dict[str, Any]:
+    """Settings as JSON reads them back (tuples become lists), so that fresh ones compare with recorded ones."""
+    return json.loads(json.dumps(settings))
+
+
 def differences(kept: dict[str, Any], current: dict[str, Any]) -> str:
     """'setting: old -> new; ...' for every setting that differs, nested ones by path ('' when none does)."""
-    kept, current = _flat(kept), _flat(current)
+    kept, current = _flat(_as_read_back(kept)), _flat(_as_read_back(current))
     keys = sorted(kept.keys() | current.keys())
     pairs = [(k, kept.get(k, _ABSENT), current.get(k, _ABSENT)) for k in keys]
     return "; ".join(f"{k}: {_describe(old)} -> {_describe(new)}" for k, old, new in pairs if old != new)
@@ -43,12 +48,11 @@ def check_settings(
     """Record `settings` (JSON-able) in `directory` on the first call; afterwards refuse different ones, naming
     each changed setting. `what` says what the directory holds, `remedy` how to start afresh, for the error."""
     path = Path(directory) / SETTINGS
-    current = json.loads(json.dumps(settings))  # as it reads back: tuples become lists
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(current, indent=2))
+        path.write_text(json.dumps(settings, indent=2))
         return
-    changed = differences(json.loads(path.read_text()), current)
+    changed = differences(json.loads(path.read_text()), settings)
     if changed:
         raise ValueError(
             f"{directory} holds {what} made with other settings ({changed}). Resume it with the settings it was "

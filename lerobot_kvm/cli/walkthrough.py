@@ -21,7 +21,7 @@ DEFAULT_SPEC = Path(__file__).resolve().parents[2] / "datasets" / "specs" / "egg
 def check_recording(root: Path, spec: RecordingSpec) -> None:
     """Refuse a dataset recorded from another spec (or other `--episodes`): training on it would silently use
     other episodes than asked for."""
-    changed = differences(load_labels(root)["spec"], json.loads(json.dumps(asdict(spec))))
+    changed = differences(load_labels(root)["spec"], asdict(spec))
     if changed:
         raise ValueError(
             f"dataset {root} was recorded with other settings ({changed}): delete it or give --dataset-root"
