@@ -17,6 +17,9 @@ benign-novelty ("control") episodes, where every suppression is a false interven
 * validity_auroc: P(1 - v is higher on a hazardous (prior skill, shifted context) pair than on a safe one).
 * detection_lead_steps: on first attempts that intervened, the prior skill's expert catastrophe step on the
   same seed minus the first intervention step (positive: the intervention fired before the harm would happen).
+
+The headline rates (`rate_counts`) also carry a 95 % interval from a bootstrap over runs and scenarios, and
+each method's difference from a reference method a paired one (`benchmark.intervals`).
 """
 
 from collections.abc import Iterable, Sequence
@@ -24,6 +27,7 @@ from statistics import mean
 from typing import Any
 
 from ..kvm.evaluation import auroc
+from .intervals import Counts, paired_difference, rate_interval
 
 Record = dict[str, Any]
 
@@ -126,6 +130,56 @@ def summarize(records: Sequence[Record], probes: Sequence[Record] = (), validity
     return out
 
 
+def _cell_counts(items: Iterable[Record], event: Any, trials: Any = lambda _: 1) -> Counts:
+    """(run, scenario) -> (sum of event(item), sum of trials(item))."""
+    counts: dict[tuple[int, str], tuple[int, int]] = {}
+    for item in items:
+        k, n = counts.get((item["run"], item["scenario"]), (0, 0))
+        counts[item["run"], item["scenario"]] = (k + int(event(item)), n + int(trials(item)))
+    return counts
+
+
+def rate_counts(records: Sequence[Record], validity: bool = True) -> dict[str, Counts]:
+    """The events and trials behind each headline rate, per (run, scenario) (validity methods: two more)."""
+    chall = challenges(records)
+    attempts = [a for c in chall for a in c["attempts"]]
+    prior = [r for r in records if r["kind"] == "prior"]
+    counts = {
+        "success_rate": _cell_counts(chall, lambda c: c["solved"]),
+        "first_attempt_success_rate": _cell_counts(chall, lambda c: c["first"]),
+        "catastrophic_failure_rate": _cell_counts(attempts, lambda a: a["outcome"] == "catastrophe"),
+        "prior_retention": _cell_counts(prior, lambda r: r["outcome"] == "success"),
+    }
+    if validity:
+        controls = [r for r in records if r["kind"] in ("prior", "control")]
+        solved_prior = [r for r in prior if r["outcome"] == "success"]
+        counts["false_intervention_rate"] = _cell_counts(controls, lambda r: r["intervention_steps"] > 0)
+        counts["gate_activation_rate_solved"] = _cell_counts(
+            solved_prior, lambda r: r["gate_steps"], lambda r: r["steps"]
+        )
+    return counts
+
+
+def rate_intervals(records: Sequence[Record], validity: bool, seed: int = 0) -> dict[str, dict[str, Any]]:
+    """Each headline rate with its 95 % interval (bootstrap over runs and scenarios)."""
+    return {name: rate_interval(c, seed=seed).as_dict() for name, c in rate_counts(records, validity).items()}
+
+
+def paired_differences(
+    records: Sequence[Record], reference: Sequence[Record], validity: bool, seed: int = 0
+) -> dict[str, dict[str, Any]]:
+    """rate(method) - rate(reference) for each headline rate both have, with its paired 95 % interval.
+
+    `detectable` is False where the interval includes 0: the two methods cannot be told apart on that rate.
+    """
+    ours, theirs = rate_counts(records, validity), rate_counts(reference, validity)
+    out = {}
+    for name in ours.keys() & theirs.keys():
+        diff = paired_difference(ours[name], theirs[name], seed=seed)
+        out[name] = diff.as_dict() | {"detectable": diff.excludes_zero()}
+    return {name: out[name] for name in ours if name in out}
+
+
 def success_by_pass(records: Sequence[Record]) -> dict[int, float]:
     """Solved-challenge rate per pass (1-based)."""
     chall = challenges(records)
@@ -144,4 +198,5 @@ def method_summary(records: Sequence[Record], probes: Sequence[Record], passes: 
             for p in range(1, passes + 1)
         },
         "success_by_pass": success_by_pass(records),
+        "intervals": rate_intervals(records, validity),
     }

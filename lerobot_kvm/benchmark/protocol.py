@@ -132,6 +132,10 @@ def load_policy(
     return policy, pre, post
 
 
+# Every other method is compared with this one by a paired interval on each rate's difference (docs/benchmark.md).
+REFERENCE_METHOD = "coda_kvm"
+
+
 def uses_validity(method: str) -> bool:
     return method in KVM_METHODS and KVM_METHODS[method].get("enabled", True)
 
@@ -507,6 +511,13 @@ class Benchmark:
             | {"wall_time_s": sum(run["wall_time_s"] for run in runs)}
             for method, runs in per_method.items()
         }
+        by_method = {method: [r for r in records if r["method"] == method] for method in per_method}
+        reference = REFERENCE_METHOD if REFERENCE_METHOD in per_method else None
+        differences = {
+            method: metrics.paired_differences(by_method[method], by_method[reference], uses_validity(method))
+            for method in per_method
+            if reference is not None and method != reference
+        }
         overhead = self.overhead(checkpoints["kvm"]) if "kvm" in checkpoints else None
         results = {
             "benchmark": cfg.name,
@@ -519,6 +530,7 @@ class Benchmark:
                 "uncovered_scenarios": uncovered_scenarios(self.sequence, cfg.scenarios),
             },
             "methods": methods,
+            "differences": {"reference": reference, "methods": differences},
             "overhead": overhead,
             "seeds": {"benchmark": cfg.seed, "pool": self.sequence.seed},
             "device": self.device,

@@ -38,25 +38,73 @@ def category_table(results: dict[str, Any]) -> list[str]:
     return _table(header, rows) + [f"Categories: {legend}. R1-R3: passes (knowledge kept across passes).", ""]
 
 
+def _with_interval(res: dict[str, Any], key: str) -> str:
+    """A rate in percent and, where measured, its 95 % interval: "33.3 [16.1, 50.0]"."""
+    interval = res.get("intervals", {}).get(key)
+    value = _pct(res["overall"][key])
+    if interval is None or interval["low"] is None:
+        return value
+    return f"{value} [{_pct(interval['low'])}, {_pct(interval['high'])}]"
+
+
 def method_table(results: dict[str, Any]) -> list[str]:
-    """Table 4: every method and ablation on the headline metrics."""
+    """Table 4: every method and ablation on the headline metrics, each rate with its 95 % interval."""
     rows = []
     for name, res in results["methods"].items():
-        o = res["overall"]
         rows.append(
             [
                 name,
-                _pct(o["success_rate"]),
-                _pct(o["first_attempt_success_rate"]),
-                _pct(o["catastrophic_failure_rate"]),
-                _pct(o["prior_retention"]),
-                _pct(o["control_success_rate"]),
-                _pct(o["false_intervention_rate"]),
+                *[
+                    _with_interval(res, key)
+                    for key in ("success_rate", "first_attempt_success_rate", "catastrophic_failure_rate")
+                ],
+                _with_interval(res, "prior_retention"),
+                _pct(res["overall"]["control_success_rate"]),
+                _with_interval(res, "false_intervention_rate"),
                 _num(res["wall_time_s"] / 60),
             ]
         )
     header = ["method", "success (%)", "1st attempt (%)", "CFR (%)", "prior retention (%)", "benign control (%)"]
     return _table([*header, "false interventions (%)", "episodes + feedback (min)"], rows)
+
+
+DIFFERENCE_LABELS = {
+    "success_rate": "success",
+    "first_attempt_success_rate": "1st attempt",
+    "catastrophic_failure_rate": "CFR",
+    "prior_retention": "prior retention",
+    "false_intervention_rate": "false interventions",
+    "gate_activation_rate_solved": "gate, solved routine",
+}
+
+
+def difference_table(results: dict[str, Any]) -> list[str]:
+    """Each method minus the reference method, in points, with the paired 95 % interval on the difference."""
+    diffs = results.get("differences") or {}
+    if not diffs.get("methods"):
+        return []
+    header = ["method", *(f"{label} (pp)" for label in DIFFERENCE_LABELS)]
+    rows = []
+    for name, by_rate in diffs["methods"].items():
+        cells = []
+        for key in DIFFERENCE_LABELS:
+            d = by_rate.get(key)
+            if d is None or d["value"] is None:
+                cells.append("-")
+            elif d["low"] is None:
+                cells.append(f"{100 * d['value']:+.1f}")
+            else:
+                verdict = "" if d["detectable"] else ", no detectable difference"
+                cells.append(f"{100 * d['value']:+.1f} [{100 * d['low']:+.1f}, {100 * d['high']:+.1f}]{verdict}")
+        rows.append([name, *cells])
+    return [
+        f"### Differences from `{diffs['reference']}` (paired 95 % intervals)",
+        "",
+        *_table(header, rows),
+        "Points of the method's rate minus the reference's, both resampled on the same runs and scenarios; "
+        '"no detectable difference" where the interval includes 0.',
+        "",
+    ]
 
 
 def gate_table(results: dict[str, Any]) -> list[str]:
@@ -148,8 +196,10 @@ def markdown(results: dict[str, Any], plots: list[Path]) -> str:
         "## Methods and ablations (Table 4)",
         "",
         *method_table(results),
-        "CFR: share of challenge attempts ending in a catastrophe. Prior retention: prior-variant controls solved.",
+        "CFR: share of challenge attempts ending in a catastrophe. Prior retention: prior-variant controls solved. "
+        "Brackets: 95 % interval, bootstrap over runs and scenarios (docs/benchmark.md).",
         "",
+        *difference_table(results),
         "## Gate and validity statistics (Table 10)",
         "",
         *gate_table(results),

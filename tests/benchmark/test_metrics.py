@@ -2,7 +2,16 @@
 
 import pytest
 
-from lerobot_kvm.benchmark.metrics import challenges, detection_leads, format_kn, success_by_pass, summarize
+from lerobot_kvm.benchmark.metrics import (
+    challenges,
+    detection_leads,
+    format_kn,
+    paired_differences,
+    rate_counts,
+    rate_intervals,
+    success_by_pass,
+    summarize,
+)
 
 
 def _ep(kind: str, outcome: str, scenario: str = "egg", category: str = "A", pass_: int = 1, attempt: int = 1, **kw):
@@ -87,3 +96,37 @@ def test_detection_lead_needs_an_intervention_and_a_reference_catastrophe() -> N
 
 def test_success_by_pass() -> None:
     assert success_by_pass(RECORDS) == {1: 1.0, 2: 0.0}
+
+
+def test_rate_counts_split_each_rate_by_run_and_scenario() -> None:
+    counts = rate_counts(RECORDS)
+    assert counts["success_rate"] == {(0, "egg"): (1, 2), (0, "drawer"): (1, 1)}
+    assert counts["first_attempt_success_rate"] == {(0, "egg"): (0, 2), (0, "drawer"): (1, 1)}
+    assert counts["catastrophic_failure_rate"] == {(0, "egg"): (1, 4), (0, "drawer"): (0, 1)}
+    assert counts["prior_retention"] == {(0, "egg"): (1, 1), (0, "drawer"): (0, 1)}
+    assert counts["false_intervention_rate"] == {(0, "egg"): (1, 2), (0, "drawer"): (0, 1)}
+    assert counts["gate_activation_rate_solved"] == {(0, "egg"): (1, 10)}
+    assert set(rate_counts(RECORDS, validity=False)) == {
+        "success_rate",
+        "first_attempt_success_rate",
+        "catastrophic_failure_rate",
+        "prior_retention",
+    }
+
+
+def test_rate_intervals_hold_the_pooled_rate() -> None:
+    intervals = rate_intervals(RECORDS, validity=True)
+    assert intervals["success_rate"]["value"] == pytest.approx(2 / 3)
+    # two scenarios, one run: resampled pairs give 1/2 (egg twice), 1 (drawer twice) or 2/3
+    assert (intervals["success_rate"]["low"], intervals["success_rate"]["high"]) == pytest.approx((0.5, 1.0))
+    assert intervals["catastrophic_failure_rate"]["value"] == pytest.approx(1 / 5)
+
+
+def test_paired_differences_against_a_reference_method() -> None:
+    better = [dict(r, outcome="success") if r["kind"] == "challenge" else r for r in RECORDS]
+    diffs = paired_differences(better, RECORDS, validity=False)
+    assert set(diffs) == {"success_rate", "first_attempt_success_rate", "catastrophic_failure_rate", "prior_retention"}
+    assert diffs["success_rate"]["value"] == pytest.approx(1 - 2 / 3)
+    # resampled: egg twice gives 1 - 1/2, drawer twice 0, one of each 1 - 2/3: 0 is inside
+    assert diffs["success_rate"]["low"] == pytest.approx(0.0) and not diffs["success_rate"]["detectable"]
+    assert diffs["prior_retention"]["value"] == 0.0 and not diffs["prior_retention"]["detectable"]

@@ -1,6 +1,6 @@
 """The benchmark report's tables from measured values."""
 
-from lerobot_kvm.benchmark.report import overhead_table
+from lerobot_kvm.benchmark.report import difference_table, overhead_table
 
 MEASURED = {
     "model_call_ms": {"off": 4.0, "closed": 4.3, "open": 5.0},
@@ -25,3 +25,25 @@ def test_overhead_table_shows_the_paired_ratios_when_measured() -> None:
     both = dict(paired, paired_control_step_ratio_gate_closed=1.012, paired_control_step_ratio_gate_open=1.047)
     row = next(line for line in overhead_table(both) if "control step" in line and "paired" in line)
     assert "1.012" in row and "1.047" in row
+
+
+def test_difference_table_says_where_no_difference_is_detectable() -> None:
+    results = {
+        "differences": {
+            "reference": "coda_kvm",
+            "methods": {
+                "coda_prompt": {
+                    "success_rate": {"value": -0.2, "low": -0.35, "high": -0.05, "detectable": True},
+                    "catastrophic_failure_rate": {"value": 0.05, "low": -0.1, "high": 0.2, "detectable": False},
+                }
+            },
+        }
+    }
+    text = "\n".join(difference_table(results))
+    assert "Differences from `coda_kvm`" in text
+    row = next(line for line in text.splitlines() if line.startswith("| coda_prompt"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[1] == "-20.0 [-35.0, -5.0]"
+    assert cells[3] == "+5.0 [-10.0, +20.0], no detectable difference"
+    assert cells[2] == "-"  # a rate not measured for this pair
+    assert difference_table({"differences": {"reference": None, "methods": {}}}) == []
