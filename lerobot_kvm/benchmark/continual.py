@@ -27,11 +27,12 @@ from typing import Any
 
 from tqdm import tqdm
 
-from ..cli.lerobot_commands import eval_command, run_logged, train_command
-from ..datasets.recorder import RecordingSpec, RecordItem, load_labels, record_dataset
+from ..datasets.labels import load_labels
+from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
 from ..envs.scenario import make_scenario
 from ..envs.sensing import check_lags
 from .cl_metrics import cl_metrics, joint_metrics
+from .lerobot_commands import eval_command, run_logged, train_command
 from .resume import check_settings
 
 CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"

@@ -23,7 +23,7 @@ from collections.abc import Iterable, Sequence
 from statistics import mean
 from typing import Any
 
-from ..kvm.evaluation import auroc
+from ..evaluation.rollouts import auroc
 
 Record = dict[str, Any]
 

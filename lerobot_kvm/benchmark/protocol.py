@@ -35,10 +35,10 @@ from tqdm import tqdm
 
 from ..envs.env import KvmObsolescenceEnv
 from ..envs.scenario import SCENARIOS
+from ..evaluation.rollouts import expert_rollout, policy_processors, run_attempt
+from ..evaluation.validity_check import CONTEXT, shift_step
 from ..kvm.configuration import KvmConfig
-from ..kvm.evaluation import expert_rollout, policy_processors, run_attempt
-from ..kvm.online import chunk_targets, skill_by_name
-from ..kvm.validity_check import CONTEXT, shift_step
+from ..policy.feedback import chunk_targets, skill_by_name
 from .continual import ContinualRun, SequenceConfig, read_config
 from .resume import check_settings
 
@@ -537,8 +537,7 @@ class Benchmark:
         path = self.out / "overhead.json"
         if path.exists():
             return json.loads(path.read_text())
-        from ..cli.overhead import observation_inputs
-        from ..kvm.overhead import measure_overhead
+        from ..evaluation.overhead import measure_overhead, observation_inputs
 
         policy, _, _ = load_policy("coda_kvm", checkpoint, device=self.device)  # the checkpoint's own KVM settings
         lags = tuple(self.sequence.context_lags)

@@ -143,7 +143,7 @@ def load_report(path: Path) -> dict:
 
 
 def measure(args: argparse.Namespace) -> dict:
-    from ..kvm.validity_check import check_validity_suite
+    from ..evaluation.validity_check import check_validity_suite
 
     return check_validity_suite(
         resolve_tasks(args.tasks),

@@ -7,59 +7,11 @@ from pathlib import Path
 from .kvm_check import lag_list
 
 
-def observation_inputs(
-    policy, policy_path: Path, task: str, variant: str, seed: int, context_lags: tuple[int, ...] = ()
-) -> tuple[dict, str]:
-    """A real observation of the scenario through the checkpoint's preprocessor (random inputs without one); the
-    environment senses with `context_lags`, as the checkpoint's dataset was recorded."""
-    import torch
-
-    if any(policy_path.glob("policy_preprocessor*.json")):
-        from ..envs.env import KvmObsolescenceEnv
-        from ..kvm.evaluation import observation_batch, policy_processors
-
-        preprocessor, _ = policy_processors(policy, policy_path)
-        env = KvmObsolescenceEnv(task=task, variant=variant, context_lags=context_lags)
-        try:
-            obs, _ = env.reset(seed=seed)
-            return preprocessor(observation_batch(obs, env.task_description)), f"{task}/{variant} observation"
-        finally:
-            env.close()
-    gen = torch.Generator().manual_seed(seed)
-    batch = {k: torch.rand(1, *ft.shape, generator=gen) for k, ft in policy.config.input_features.items()}
-    batch["task"] = ["pick up the object"]
-    return {k: v.to(policy.config.device) if hasattr(v, "to") else v for k, v in batch.items()}, "random inputs"
-
-
-def give_failures(
-    policy, policy_path: Path, scenarios: list[str], seed: int, context_lags: tuple[int, ...] = ()
-) -> list[dict]:
-    """One attempt of the policy on each scenario's shifted variant, its outcome given back through the feedback
-    API, as in deployment: a failed attempt puts its contexts in the KVM's failure memory, so that the gate-open
-    step is timed with the nearest-neighbour risk model searching them (a skill without failures has none)."""
-    from ..envs.env import KvmObsolescenceEnv
-    from ..kvm.evaluation import policy_processors, run_attempt
-
-    if not any(policy_path.glob("policy_preprocessor*.json")):
-        raise FileNotFoundError(f"--failures runs the policy in the scenarios: {policy_path} has no processors")
-    pre, post = policy_processors(policy, policy_path)
-    given = []
-    for scenario in scenarios:
-        env = KvmObsolescenceEnv(task=scenario, variant="shifted", context_lags=context_lags)
-        try:
-            attempt = run_attempt(policy, env, pre, post, seed=seed)
-        finally:
-            env.close()
-        policy.kvm_feedback(attempt["outcome"], attempt["trace"])
-        given.append({"scenario": scenario, "outcome": attempt["outcome"], "steps": attempt["steps"]})
-    return given
-
-
 def run(args: argparse.Namespace) -> int:
     import torch
     from lerobot.configs.policies import PreTrainedConfig
 
-    from ..kvm.overhead import measure_overhead
+    from ..evaluation.overhead import give_failures, measure_overhead, observation_inputs
     from ..policy import CodaKvmPolicy
 
     if args.threads:

@@ -22,8 +22,8 @@ from ..envs.configuration_kvm_obsolescence import OBS_CONTEXT
 from ..envs.env import KvmObsolescenceEnv
 from ..envs.scenario import make_scenario
 from ..envs.sensing import ACTION_NAMES, STATE_NAMES, context_names
+from .labels import LABELS_FILE
 
-LABELS_FILE = "meta/kvm_labels.json"
 OUTCOMES = ("success", "failure", "catastrophe")
 LABEL_KEYS = ("label.skill", "label.scenario", "label.variant", "label.outcome")
 
@@ -213,15 +213,3 @@ def record_dataset(
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return {"root": str(root), "repo_id": repo_id, "episodes": ds.num_episodes, "items": summary}
-
-
-def load_labels(root: str | Path) -> dict:
-    """The training-only labels of a recorded dataset: `vocab`, `spec`, `summary`, `episodes`."""
-    path = Path(root) / LABELS_FILE
-    if not path.exists():
-        raise FileNotFoundError(f"{path} missing: {root} was not recorded by lerobot-kvm record")
-    return json.loads(path.read_text())
-
-
-def load_label_vocab(root: str | Path) -> dict[str, list[str]]:
-    return load_labels(root)["vocab"]

@@ -2,8 +2,10 @@
 
 Modules: `configuration` (KvmConfig), `context_encoder` (E_c), `gate` (eq. 1), `energy` (E_theta, eq. 2, BCE
 variant), `fusion` (eq. 3), `losses` (eqs. 5, 6, 13), `memory` (persistent buffers), `attribution` (App. D),
-`metabolism` (eqs. 7-8), `telemetry`, `supervisor` (the nn.Module tying them together), `online` (the feedback
-API's algorithm) and `overhead` (latency measurement).
+`metabolism` (eqs. 7-8), `telemetry` and `supervisor` (the nn.Module tying them together).
+
+The paper's mechanism only: it imports nothing else of the project. The policy drives it (`policy.feedback` is
+the feedback API's algorithm) and `lerobot_kvm.evaluation` measures it.
 """
 
 from .configuration import KvmConfig

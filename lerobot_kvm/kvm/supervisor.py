@@ -5,7 +5,7 @@
 score every skill in the pool (candidates and the rest) with the energy model when the gate is open, turn the
 energies into validities (eq. 2) and the validities into skill weights for the fused prompt (eq. 3).
 `offline_step()` is the learning that runs inside `forward()` during `lerobot-train`; `train_online()` is the
-update of the feedback API (see `kvm.online`).
+update of the feedback API (driven by `policy.feedback`).
 """
 
 import sys
@@ -666,6 +666,16 @@ class KnowledgeValidityModule(nn.Module):
 
     def n_permanent(self) -> int:
         return int(((self.fail_online.flags & PERMANENT) > 0).sum())
+
+    @torch.no_grad()
+    def similar_to_hypothesis(self, mu: Tensor, hypothesis_id: int) -> Tensor:
+        """[B] bool: context codes similar to a hypothesis's contexts (its prototype and negatives): where an
+        intervention or a failure counts as evidence for it (App. D)."""
+        table = self.hypotheses
+        rows = [table.prototype[table.row(hypothesis_id)].unsqueeze(0)]
+        tagged = (self.fail_online.tag == hypothesis_id) & (self.fail_online.stamp >= 0)
+        rows.append(self.fail_online.data[tagged])
+        return self.gate.similar(mu, self.encode(torch.cat(rows))[0])
 
 
 def _whole(c_raw: Tensor) -> Tensor:

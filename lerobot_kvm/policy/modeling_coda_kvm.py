@@ -21,12 +21,13 @@ from lerobot.utils.device_utils import resolve_safetensors_device
 from safetensors.torch import load_file
 from torch import Tensor
 
-from ..kvm.online import apply_feedback
+from ..datasets.labels import LABELS_FILE, load_labels
 from ..kvm.supervisor import KnowledgeValidityModule
 from ..kvm.telemetry import KvmStepTelemetry, KvmTrace
 from .backbone import PromptedBackbone
 from .coda_prompt import CodaPromptPool, Skill
 from .configuration_coda_kvm import CodaKvmConfig
+from .feedback import apply_feedback
 from .text_encoder import FrozenTextEncoder
 
 TASK_KEY = "task"
@@ -90,8 +91,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
         root = getattr(dataset_meta, "root", None)
         if root is None:
             return
-        from ..datasets.recorder import LABELS_FILE, load_labels
-
         if (Path(root) / LABELS_FILE).exists():
             self.kvm_set_episode_labels(load_labels(root)["episodes"])
 
@@ -157,11 +156,11 @@ class CodaKvmPolicy(PreTrainedPolicy):
         gradient_steps: int | None = None,
         task: str | None = None,
     ) -> dict[str, Any]:
-        """Learn from one finished attempt (Algorithm 1, lines 26-40); see `lerobot_kvm.kvm.online`.
+        """Learn from one finished attempt (Algorithm 1, lines 26-40); see `lerobot_kvm.policy.feedback`.
 
         outcome: "success", "failure" or "catastrophe"; trace: the attempt (default: the current trace, which
         must hold one environment); demonstration: an optional corrective demonstration (policy inputs and
-        normalized actions over T steps, see `kvm.online.make_demonstration`; one that names a skill of the pool
+        normalized actions over T steps, see `policy.feedback.make_demonstration`; one that names a skill of the pool
         teaches that skill, so it is no knowledge gap); gradient_steps: the budget of
         KVM gradient steps (default `kvm.feedback_steps`). Returns a report of what was learned and decided.
         """
@@ -247,7 +246,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
         query = self.encode_query(self._tasks(batch, batch_size))
         if skill_weights is None and self.training and self.config.skill_dropout > 0 and self.n_skills > 1:
             skill_weights = self._skill_dropout_weights(batch_size, query.device)
-        pred = self._decode(batch, self.pool.component_alphas(query), skill_weights)
+        pred = self.decode(batch, self.pool.component_alphas(query), skill_weights)
         target, valid = self._check_action(batch, pred.shape[0])
         err = (pred - target).abs() * valid.unsqueeze(-1)
         per_sample = err.sum(dim=(1, 2)) / (valid.sum(dim=1) * pred.shape[-1]).clamp_min(1)
@@ -326,7 +325,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
                 self._action_queue.clear()
         if not self._action_queue:
             if pending is not None:
-                chunk, telemetry = self._decode(batch, pending[0], pending[1]), pending[2]
+                chunk, telemetry = self.decode(batch, pending[0], pending[1]), pending[2]
             else:
                 chunk, telemetry = self._infer(batch, skill_weights)
             self._action_queue.extend(chunk[:, : self.config.n_action_steps].transpose(0, 1))
@@ -411,15 +410,15 @@ class CodaKvmPolicy(PreTrainedPolicy):
         """One model call: KVM assessment (when enabled and no explicit weights) + fused prompt + backbone."""
         if self._kvm_active(skill_weights):
             alphas, weights, telemetry = self._assess(batch)
-            return self._decode(batch, alphas, weights), telemetry
+            return self.decode(batch, alphas, weights), telemetry
         return self._predict(batch, skill_weights), None
 
     def _predict(self, batch: dict[str, Any], skill_weights: Tensor | None) -> Tensor:
         batch_size = self._check_observation(batch)
         query = self.encode_query(self._tasks(batch, batch_size))
-        return self._decode(batch, self.pool.component_alphas(query), skill_weights)
+        return self.decode(batch, self.pool.component_alphas(query), skill_weights)
 
-    def _decode(self, batch: dict[str, Any], alphas: Tensor, skill_weights: Tensor | None) -> Tensor:
+    def decode(self, batch: dict[str, Any], alphas: Tensor, skill_weights: Tensor | None) -> Tensor:
         """Eq. 4: actions from the backbone prefixed by the fused prompt (component alphas [L, B, M])."""
         prompts = self.pool.prompt_from_alphas(alphas, skill_weights)
         images = [batch[key] for key in self.config.image_features]

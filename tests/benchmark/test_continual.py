@@ -78,7 +78,7 @@ def test_a_windowed_sequence_records_evaluates_and_trains_with_its_context_lags(
 
 def test_a_dataset_recorded_with_another_window_is_refused(tmp_path):
     from lerobot_kvm.benchmark.continual import check_dataset_window
-    from lerobot_kvm.datasets.recorder import LABELS_FILE
+    from lerobot_kvm.datasets.labels import LABELS_FILE
 
     labels = tmp_path / LABELS_FILE
     labels.parent.mkdir(parents=True)

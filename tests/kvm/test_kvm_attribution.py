@@ -16,7 +16,7 @@ from lerobot_kvm.kvm.attribution import (
 )
 from lerobot_kvm.kvm.experience import ExperienceViews, SafeExperience
 from lerobot_kvm.kvm.memory import PERMANENT
-from lerobot_kvm.kvm.online import make_demonstration
+from lerobot_kvm.policy.feedback import make_demonstration
 
 EGG = "pick up the egg"
 

@@ -7,8 +7,8 @@ import draccus
 import pytest
 import torch
 
+from lerobot_kvm.evaluation.overhead import measure_overhead, paired_ratio
 from lerobot_kvm.kvm.configuration import KvmConfig
-from lerobot_kvm.kvm.overhead import measure_overhead, paired_ratio
 from lerobot_kvm.policy import CodaKvmConfig
 
 CONTEXT = "observation.context"

@@ -47,11 +47,12 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from ..datasets.recorder import RecordingSpec, RecordItem, load_labels, record_dataset
+from ..datasets.labels import load_labels
+from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
 from ..envs.env import KvmObsolescenceEnv
 from ..envs.scenario import SCENARIOS
-from .configuration import KvmConfig
-from .evaluation import (
+from ..kvm.configuration import KvmConfig
+from .rollouts import (
     auroc,
     context_validity,
     expert_rollout,

@@ -12,8 +12,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .online import make_demonstration
-from .telemetry import KvmTrace
+from ..kvm.telemetry import KvmTrace
+from ..policy.feedback import make_demonstration
 
 Processor = Callable[[dict[str, Any]], Any]
 

@@ -34,28 +34,55 @@ after an attempt:
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import torch
 import torch.nn.functional as F  # noqa: N812
-from torch import Tensor
+from torch import Tensor, nn
 
-from .attribution import (
+from ..kvm.attribution import (
     OPEN,
     agreeing_skill,
     counterfactual_culprit,
     culprit_skill,
+    demonstrated_skill,
     knowledge_gap,
     normalised_relevance,
 )
-from .experience import ExperienceViews
-from .fusion import fuse_weights, plain_scale
-from .telemetry import KvmTrace
-
-if TYPE_CHECKING:
-    from ..policy.modeling_coda_kvm import CodaKvmPolicy
+from ..kvm.experience import ExperienceViews
+from ..kvm.fusion import fuse_weights, plain_scale
+from ..kvm.supervisor import KnowledgeValidityModule
+from ..kvm.telemetry import KvmTrace
+from .coda_prompt import CodaPromptPool, Skill
+from .configuration_coda_kvm import CodaKvmConfig
 
 OUTCOMES = ("success", "failure", "catastrophe")
+
+
+class FeedbackPolicy(Protocol):
+    """What the feedback reads and drives of the policy (`CodaKvmPolicy` is one): a protocol, so that this module
+    and the policy's module do not import each other."""
+
+    config: CodaKvmConfig
+    kvm: KnowledgeValidityModule
+    pool: CodaPromptPool
+    backbone: nn.Module
+    query_fingerprint: Tensor
+    training: bool
+
+    @property
+    def skills(self) -> list[Skill]: ...
+    @property
+    def n_skills(self) -> int: ...
+    def train(self, mode: bool = True) -> Any: ...
+    def eval(self) -> Any: ...
+    def encode_query(self, tasks: Sequence[str]) -> Tensor: ...
+    def kvm_active_skills(self) -> Tensor: ...
+    def begin_new_skill(self, name: str, description: str = "", corrects: int | None = None) -> int: ...
+    def predict_action_chunk(self, batch: dict[str, Any], skill_weights: Tensor | None = None) -> Tensor: ...
+    def decode(self, batch: dict[str, Any], alphas: Tensor, skill_weights: Tensor | None) -> Tensor: ...
+
+
 ACTION = "action"
 ACTION_PAD = "action_is_pad"
 
@@ -96,12 +123,12 @@ def chunk_targets(actions: Tensor, chunk: int) -> tuple[Tensor, Tensor]:
     return actions[idx.clamp(max=t_len - 1)], pad
 
 
-def _observation_keys(policy: "CodaKvmPolicy") -> tuple[str, ...]:
+def _observation_keys(policy: FeedbackPolicy) -> tuple[str, ...]:
     """The observation tensors the policy reads: what a seed frame or a demonstration step must carry."""
     return (*policy.config.image_features, "observation.state", policy.config.context_key)
 
 
-def _demo_frames(policy: "CodaKvmPolicy", demo: dict[str, Any]) -> dict[str, Any]:
+def _demo_frames(policy: FeedbackPolicy, demo: dict[str, Any]) -> dict[str, Any]:
     keys = _observation_keys(policy)
     missing = [k for k in (*keys, ACTION) if not isinstance(demo.get(k), Tensor)]
     if missing:
@@ -122,7 +149,7 @@ def _demo_frames(policy: "CodaKvmPolicy", demo: dict[str, Any]) -> dict[str, Any
     return frames
 
 
-def _trace_frames(policy: "CodaKvmPolicy", trace: KvmTrace) -> dict[str, Any] | None:
+def _trace_frames(policy: FeedbackPolicy, trace: KvmTrace) -> dict[str, Any] | None:
     """Seed frames (observations + the actions the policy executed) of a successful one-environment trace."""
     if not trace.observations or len(trace.observations) != len(trace):
         return None
@@ -144,7 +171,7 @@ def _cat_frames(parts: list[dict[str, Any]]) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------- counterfactual attribution
 @torch.no_grad()
-def removal_errors(policy: "CodaKvmPolicy", frames: dict[str, Any], candidates: Tensor) -> tuple[float, Tensor]:
+def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], candidates: Tensor) -> tuple[float, Tensor]:
     """The policy's action error on demonstration frames with every active skill in force (the CODA prompt before
     the KVM's re-weighting), and [S] the error with each candidate taken out of the prompt (inf elsewhere).
 
@@ -175,7 +202,7 @@ def removal_errors(policy: "CodaKvmPolicy", frames: dict[str, Any], candidates: 
 
 
 def _attribute(
-    policy: "CodaKvmPolicy", frames: dict[str, Any] | None, candidates: Tensor, proposed: int
+    policy: FeedbackPolicy, frames: dict[str, Any] | None, candidates: Tensor, proposed: int
 ) -> dict[str, Any]:
     """Who is blamed for a failure (see `kvm.attribution`) and which skill the demonstration shows, with the
     evidence: {"rule", "culprit", "agrees", "error", "gain" (skill -> error cut by its removal)}."""
@@ -197,7 +224,7 @@ def _attribute(
 
 # ---------------------------------------------------------------------------- focused fine-tuning of a new skill
 def focused_finetune(
-    policy: "CodaKvmPolicy",
+    policy: FeedbackPolicy,
     frames: dict[str, Any],
     skill: int,
     steps: int,
@@ -249,7 +276,7 @@ def focused_finetune(
                 weights = fuse_weights(
                     v[idx], pool.relevance_from_alphas(alphas).detach(), cfg.fusion_renormalize, cfg.fusion_eps
                 )
-                pred = policy._decode(sub, alphas, weights)
+                pred = policy.decode(sub, alphas, weights)
                 valid = (~sub[ACTION_PAD]).to(pred.dtype).unsqueeze(-1)
                 l1 = ((pred - sub[ACTION]).abs() * valid).sum() / (valid.sum() * pred.shape[-1]).clamp_min(1)
                 key = (1 - alphas[..., lo:hi]).mean()
@@ -293,16 +320,6 @@ def _steps(mask: Tensor) -> list[int]:
     return torch.nonzero(mask).flatten().tolist()
 
 
-@torch.no_grad()
-def _similar(kvm: Any, mu: Tensor, hypothesis_id: int) -> Tensor:
-    """[B] bool: context codes similar to a hypothesis's contexts (its prototype and negatives)."""
-    table = kvm.hypotheses
-    rows = [table.prototype[table.row(hypothesis_id)].unsqueeze(0)]
-    tagged = (kvm.fail_online.tag == hypothesis_id) & (kvm.fail_online.stamp >= 0)
-    rows.append(kvm.fail_online.data[tagged])
-    return kvm.gate.similar(mu, kvm.encode(torch.cat(rows))[0])
-
-
 @dataclass
 class _Attempt:
     """One reported attempt, encoded once: what the failure and the success branches of the feedback read."""
@@ -319,7 +336,7 @@ class _Attempt:
 
 
 def apply_feedback(
-    policy: "CodaKvmPolicy",
+    policy: FeedbackPolicy,
     outcome: str,
     trace: KvmTrace,
     demonstration: dict[str, Any] | None = None,
@@ -409,7 +426,7 @@ class _Failure:
 
 
 def _learn_from_failure(
-    policy: "CodaKvmPolicy",
+    policy: FeedbackPolicy,
     attempt: _Attempt,
     attribution: dict[str, Any],
     frames: dict[str, Any] | None,
@@ -430,7 +447,7 @@ def _learn_from_failure(
     context |= experience.departed(c_raw, cfg.departure_radius)
     hypothesis_id = None
     for h in kvm.hypotheses.ids(skill=culprit):
-        if bool(_similar(kvm, attempt.mu[context], h).any()):
+        if bool(kvm.similar_to_hypothesis(attempt.mu[context], h).any()):
             hypothesis_id = h
             break
     suppressed = bool(attempt.intervention[context, culprit].any())
@@ -470,7 +487,7 @@ def _learn_from_failure(
 
 
 def _learn_from_demonstration(
-    policy: "CodaKvmPolicy",
+    policy: FeedbackPolicy,
     attempt: _Attempt,
     failure: _Failure,
     attribution: dict[str, Any],
@@ -501,7 +518,7 @@ def _learn_from_demonstration(
     elif attribution["agrees"] is not None and bool(active[attribution["agrees"]]):
         failure.demo_skill = attribution["agrees"]
     else:
-        failure.demo_skill = _demo_skill(d_rel, culprit, active)
+        failure.demo_skill = demonstrated_skill(d_rel, culprit, active)
     if failure.demo_skill is not None:
         # The demonstrated strategy is the one meant for the contexts the culprit failed in: they are safe for it
         # (for a new gap skill, the whole failed attempt). Otherwise those contexts would be hazardous for the
@@ -520,7 +537,7 @@ def _learn_from_demonstration(
 
 
 def _learn_from_success(
-    policy: "CodaKvmPolicy", attempt: _Attempt, trace: KvmTrace, demonstration: dict[str, Any] | None
+    policy: FeedbackPolicy, attempt: _Attempt, trace: KvmTrace, demonstration: dict[str, Any] | None
 ) -> dict[str, Any]:
     """A success: safe samples for the dominant skill; interventions near an open hypothesis count for it, and a
     confirmation with a knowledge gap creates a new skill seeded from this interaction."""
@@ -536,7 +553,7 @@ def _learn_from_success(
         if i >= policy.n_skills or not bool(intervention[:, i].any()):
             continue
         steps_i = torch.nonzero(intervention[:, i]).flatten()
-        similar = _similar(kvm, attempt.mu[steps_i], h)
+        similar = kvm.similar_to_hypothesis(attempt.mu[steps_i], h)
         if not bool(similar.any()):
             continue
         matched = steps_i[similar]
@@ -561,22 +578,12 @@ def _learn_from_success(
     return report
 
 
-def skill_by_name(policy: "CodaKvmPolicy", name: str | None) -> int | None:
+def skill_by_name(policy: FeedbackPolicy, name: str | None) -> int | None:
     """The pool's skill a demonstration names, if it has one by that name."""
     return next((s.index for s in policy.skills if s.name == name), None) if name is not None else None
 
 
-def _demo_skill(relevance: Tensor, culprit: int, active: Tensor) -> int | None:
-    """The policy skill an unnamed demonstration shows: the most relevant active alternative to the culprit."""
-    alternatives = active.clone()
-    alternatives[culprit] = False
-    if not bool(alternatives.any()):
-        return None
-    mean = relevance.mean(0).masked_fill(~alternatives, float("-inf"))
-    return int(mean.argmax())
-
-
-def _new_skill_name(policy: "CodaKvmPolicy") -> str:
+def _new_skill_name(policy: FeedbackPolicy) -> str:
     names = {s.name for s in policy.skills}
     n = policy.n_skills
     while f"kvm_skill_{n}" in names:
@@ -584,7 +591,7 @@ def _new_skill_name(policy: "CodaKvmPolicy") -> str:
     return f"kvm_skill_{n}"
 
 
-def _begin_gap_skill(policy: "CodaKvmPolicy", hypothesis_id: int, culprit: int, task: str) -> int:
+def _begin_gap_skill(policy: FeedbackPolicy, hypothesis_id: int, culprit: int, task: str) -> int:
     """A new skill that corrects the culprit (see `fusion.correction_validity`): out of force where the gate is
     closed, so the contexts where the culprit is still right (inside the safe experience) keep their prompt.
     It starts as a copy of the culprit (`kvm.gap_init`)."""
@@ -598,7 +605,7 @@ def _begin_gap_skill(policy: "CodaKvmPolicy", hypothesis_id: int, culprit: int, 
 
 
 def _gap_skill(
-    policy: "CodaKvmPolicy", hypothesis_id: int, culprit: int, relevance: Tensor, active: Tensor, task: str
+    policy: FeedbackPolicy, hypothesis_id: int, culprit: int, relevance: Tensor, active: Tensor, task: str
 ) -> dict[str, Any] | None:
     """The skill a failure's corrective demonstration seeds. A gap skill already made for this hypothesis, or
     a blamed correction of the skill the task relies on, is refined (never replaced by another). Otherwise a
@@ -624,7 +631,7 @@ def _gap_skill(
     return {"created": True, "index": index, "name": policy.skills[index].name}
 
 
-def _focus(policy: "CodaKvmPolicy", index: int, frames: dict[str, Any], query: Tensor, steps: int) -> dict[str, Any]:
+def _focus(policy: FeedbackPolicy, index: int, frames: dict[str, Any], query: Tensor, steps: int) -> dict[str, Any]:
     """`steps` of focused fine-tuning of a new skill on its seed frames; its keys are pushed away from every
     other query the KVM has seen safe."""
     cfg = policy.config.kvm
@@ -638,7 +645,7 @@ def _focus(policy: "CodaKvmPolicy", index: int, frames: dict[str, Any], query: T
 
 
 def _create_skill(
-    policy: "CodaKvmPolicy",
+    policy: FeedbackPolicy,
     hypothesis_id: int,
     culprit: int,
     task: str,
