@@ -4,8 +4,6 @@ import argparse
 import json
 from pathlib import Path
 
-from .kvm_check import lag_list
-
 
 def run(args: argparse.Namespace) -> int:
     import torch
@@ -23,9 +21,8 @@ def run(args: argparse.Namespace) -> int:
     config = PreTrainedConfig.from_pretrained(path)
     config.device = args.device or config.device
     policy = CodaKvmPolicy.from_pretrained(path, config=config)
-    lags = args.context_lags
-    failures = give_failures(policy, path, args.failures.split(","), args.seed, lags) if args.failures else []
-    batch, source = observation_inputs(policy, path, args.task, args.variant, args.seed, lags)
+    failures = give_failures(policy, path, args.failures.split(","), args.seed) if args.failures else []
+    batch, source = observation_inputs(policy, path, args.task, args.variant, args.seed)
     result = measure_overhead(policy, batch, steps=args.steps, warmup=args.warmup, block=args.block)
     result.update(policy_path=str(path), inputs=source, feedback=failures, failure_memory=len(policy.kvm.fail_online))
     text = json.dumps(result, indent=2)
@@ -51,12 +48,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="",
         help="comma-separated scenarios: before timing, one attempt on each one's shifted variant with its outcome "
         "given as feedback (puts failures in the KVM's memory, as after deployment)",
-    )
-    p.add_argument(
-        "--context-lags",
-        type=lag_list,
-        default=(),
-        help="the environment's context lags the checkpoint's dataset was recorded with (e.g. 1,2,4,8)",
     )
     p.add_argument("--device", help="override the checkpoint's device (e.g. cpu)")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")

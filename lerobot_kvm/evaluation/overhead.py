@@ -119,14 +119,11 @@ def measure_overhead(
     }
 
 
-def observation_inputs(
-    policy, policy_path: Path, task: str, variant: str, seed: int, context_lags: tuple[int, ...] = ()
-) -> tuple[dict, str]:
-    """A real observation of the scenario through the checkpoint's preprocessor (random inputs without one); the
-    environment senses with `context_lags`, as the checkpoint's dataset was recorded."""
+def observation_inputs(policy: Any, policy_path: Path, task: str, variant: str, seed: int) -> tuple[dict, str]:
+    """A real observation of the scenario through the checkpoint's preprocessor (random inputs without one)."""
     if any(policy_path.glob("policy_preprocessor*.json")):
         preprocessor, _ = policy_processors(policy, policy_path)
-        env = KvmObsolescenceEnv(task=task, variant=variant, context_lags=context_lags)
+        env = KvmObsolescenceEnv(task=task, variant=variant)
         try:
             obs, _ = env.reset(seed=seed)
             return preprocessor(observation_batch(obs, env.task_description)), f"{task}/{variant} observation"
@@ -138,9 +135,7 @@ def observation_inputs(
     return {k: v.to(policy.config.device) if hasattr(v, "to") else v for k, v in batch.items()}, "random inputs"
 
 
-def give_failures(
-    policy, policy_path: Path, scenarios: list[str], seed: int, context_lags: tuple[int, ...] = ()
-) -> list[dict]:
+def give_failures(policy: Any, policy_path: Path, scenarios: list[str], seed: int) -> list[dict]:
     """One attempt of the policy on each scenario's shifted variant, its outcome given back through the feedback
     API, as in deployment: a failed attempt puts its contexts in the KVM's failure memory, so that the gate-open
     step is timed with the nearest-neighbour risk model searching them (a skill without failures has none)."""
@@ -149,7 +144,7 @@ def give_failures(
     pre, post = policy_processors(policy, policy_path)
     given = []
     for scenario in scenarios:
-        env = KvmObsolescenceEnv(task=scenario, variant="shifted", context_lags=context_lags)
+        env = KvmObsolescenceEnv(task=scenario, variant="shifted")
         try:
             attempt = run_attempt(policy, env, pre, post, seed=seed)
         finally:

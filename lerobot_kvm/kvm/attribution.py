@@ -28,6 +28,7 @@ from torch import Tensor, nn
 
 EMPTY, OPEN, CONFIRMED = 0, 1, 2
 STATE_NAMES = {EMPTY: "empty", OPEN: "open", CONFIRMED: "confirmed"}
+PERSISTENCE = 3  # App. D, App. E: N_p, a hypothesis is confirmed when its intervention counter exceeds it
 
 
 class HypothesisTable(nn.Module):

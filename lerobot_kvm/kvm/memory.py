@@ -167,8 +167,9 @@ class EpisodeLabels(nn.Module):
         return bool((self.table[:, 0] >= 0).any())
 
     @torch.no_grad()
-    def load(self, episodes: Sequence[dict], use_shifted: bool = False) -> int:
-        """Fill from `load_labels(root)["episodes"]`; returns the number of episodes stored."""
+    def load(self, episodes: Sequence[dict]) -> int:
+        """Fill from `load_labels(root)["episodes"]`; returns the number of episodes stored. Frames of a
+        benchmark-shifted variant are never learned offline (the leakage rule): they are stored as not usable."""
         vocab = sorted({str(e["skill"]) for e in episodes})
         raw = json.dumps(vocab).encode("utf-8")
         if len(raw) > VOCAB_BYTES:
@@ -182,7 +183,7 @@ class EpisodeLabels(nn.Module):
             outcome = str(e.get("outcome", "success"))
             if outcome not in OUTCOME_IDS:
                 raise ValueError(f"episode {index}: unknown outcome {outcome!r}; expected one of {list(OUTCOME_IDS)}")
-            usable = use_shifted or str(e.get("variant", "prior")) != "shifted"
+            usable = str(e.get("variant", "prior")) != "shifted"
             table[index] = torch.tensor([vocab.index(str(e["skill"])), OUTCOME_IDS[outcome], int(usable)])
             stored += 1
         self.table.copy_(table)

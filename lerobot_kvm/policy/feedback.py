@@ -7,8 +7,8 @@ after an attempt:
   skill the CL core proposed (the culprit rule below, applied whatever the outcome).
 * failure: the culprit (minimal counterfactual: the skill that carried the largest share of the fused prompt over
   the last K steps) and the failure context (steps outside the safe experience, sigma_c^2 > tau, plus the last K
-  steps, the last `kvm.fail_context_last` steps whatever the safe experience says, and the steps from which the
-  attempt left the culprit's safe experience for good, `SafeExperience.departed`) form a low-confidence
+  steps, and the steps from which the attempt left the culprit's safe experience for good,
+  `SafeExperience.departed`) form a low-confidence
   hypothesis, or add evidence to a matching one. The failure context paired with the culprit becomes provisional
   h_fail negatives; a corrective demonstration gives positives for the skill that demonstrates the safe strategy
   (its name in `demonstration["skill"]`, else the most relevant alternative), in its own contexts and in the
@@ -49,14 +49,24 @@ from ..kvm.attribution import (
     knowledge_gap,
     normalised_relevance,
 )
-from ..kvm.experience import ExperienceViews
+from ..kvm.experience import SafeExperience
 from ..kvm.fusion import fuse_weights, plain_scale
 from ..kvm.supervisor import KnowledgeValidityModule
-from ..kvm.telemetry import KvmTrace
+from ..kvm.telemetry import TAU_V, KvmTrace
 from .coda_prompt import CodaPromptPool, Skill
 from .configuration_coda_kvm import CodaKvmConfig
 
 OUTCOMES = ("success", "failure", "catastrophe")
+FAIL_CONTEXT_STEPS = 10  # App. D: K, the last steps before a failure that the culprit rule and its context read ...
+# ... unless they lie inside the culprit's safe experience: the quantile of the safe memory's cross-episode
+# nearest-neighbour distances below which a context counts as already known safe (`SafeExperience.known`)
+KNOWN_SAFE_QUANTILE = 0.95
+# App. D minimal counterfactual: another proposed skill is blamed when taking it out of the prompt cuts the
+# action error on the corrective demonstration by more than this share, and by that much more than removing the
+# largest share does
+ATTRIBUTION_MARGIN = 0.1
+FOCUSED_LR = 3e-3  # App. D focused fine-tuning: Adam step size on the new skill's parameters
+FOCUSED_KEY_WEIGHT = 1.0  # App. D focused fine-tuning: pull of the new skill's CODA keys towards its seed queries
 
 
 class FeedbackPolicy(Protocol):
@@ -204,15 +214,16 @@ def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], candidates: T
 def _attribute(
     policy: FeedbackPolicy, frames: dict[str, Any] | None, candidates: Tensor, proposed: int
 ) -> dict[str, Any]:
-    """Who is blamed for a failure (see `kvm.attribution`) and which skill the demonstration shows, with the
-    evidence: {"rule", "culprit", "agrees", "error", "gain" (skill -> error cut by its removal)}."""
-    cfg = policy.config.kvm
-    if frames is None or cfg.attribution != "counterfactual":
+    """Who is blamed for a failure and which skill the demonstration shows, with the evidence: {"rule", "culprit",
+    "agrees", "error", "gain" (skill -> error cut by its removal)}. Without a corrective demonstration: the proposed
+    skill (the largest share of the prompt); with one, that skill unless taking another proposed skill out of the
+    prompt cuts the policy's action error on the demonstration by `ATTRIBUTION_MARGIN` more (App. D)."""
+    if frames is None:
         return {"rule": "relevance", "culprit": proposed, "agrees": None}
     candidates = candidates.clone()
     candidates[proposed] = True
     error, without = removal_errors(policy, frames, candidates)
-    culprit = counterfactual_culprit(error, without, candidates, proposed, cfg.attribution_margin)
+    culprit = counterfactual_culprit(error, without, candidates, proposed, ATTRIBUTION_MARGIN)
     return {
         "rule": "relevance" if culprit == proposed else "counterfactual",
         "culprit": culprit,
@@ -347,7 +358,7 @@ def apply_feedback(
     if outcome not in OUTCOMES:
         raise ValueError(f"outcome must be one of {OUTCOMES}, got {outcome!r}")
     if len(trace) == 0:
-        raise ValueError("the trace is empty: run an attempt with select_action (record_trace=True) first")
+        raise ValueError("the trace is empty: run an attempt with select_action first")
     if trace.batch_size != 1:
         raise ValueError(f"feedback takes one environment's trace, got batch size {trace.batch_size}: use .episode(b)")
     if gradient_steps is not None and gradient_steps < 0:
@@ -371,7 +382,7 @@ def apply_feedback(
     v_used, w_used = v_used.to(device), w_used.to(device)
     relevance = normalised_relevance(alphas, active)
     candidate = active.unsqueeze(0) & (relevance >= cfg.candidate_min_alpha)
-    intervention = candidate & (v_used < cfg.tau_v)
+    intervention = candidate & (v_used < TAU_V)
     share = (w_used * alphas).abs()
     attempt = _Attempt(
         c_raw, mu, sigma2 > tau, relevance, intervention, share.argmax(-1), active, task or tasks[0], steps
@@ -380,9 +391,9 @@ def apply_feedback(
     # The skill the CL core proposed for this interaction: the culprit rule, whatever the outcome (a failure with a
     # corrective demonstration verifies it, `_attribute`). Charging every candidate instead would retire each
     # broadly relevant skill for failures it barely touched.
-    proposed = culprit_skill(relevance, cfg.fail_context_steps)
+    proposed = culprit_skill(relevance, FAIL_CONTEXT_STEPS)
     frames = _demo_frames(policy, demonstration) if demonstration is not None else None
-    k = cfg.fail_context_steps
+    k = FAIL_CONTEXT_STEPS
     attribution = _attribute(policy, frames if failed else None, candidate[-k:].any(0), proposed)
     proposed = attribution["culprit"]
     kvm.metabolism.record(attempt.task, torch.arange(n_skills, device=device) == proposed, failed, intervention.any(0))
@@ -416,7 +427,7 @@ class _Failure:
     context: Tensor  # [T] bool: the attempt's failure context
     hypothesis_id: int
     permanent: bool  # the hypothesis is confirmed: its negatives are permanent
-    experience: ExperienceViews  # the culprit's
+    experience: SafeExperience  # the culprit's
     negatives: list[Tensor]  # contexts that become h_fail negatives for the culprit
     positives: list[tuple[Tensor, Tensor]] = field(default_factory=list)  # (contexts, skills) learned safe
     demo_skill: int | None = None
@@ -439,11 +450,9 @@ def _learn_from_failure(
     c_raw = attempt.c_raw
     culprit = attribution["culprit"]
     context = attempt.opened.clone()
-    context[-cfg.fail_context_steps :] = True
+    context[-FAIL_CONTEXT_STEPS:] = True
     experience = kvm.safe_experience(culprit)
-    context &= ~experience.known(c_raw, cfg.known_safe_quantile)
-    if cfg.fail_context_last:
-        context[-cfg.fail_context_last :] = True
+    context &= ~experience.known(c_raw, KNOWN_SAFE_QUANTILE)
     context |= experience.departed(c_raw, cfg.departure_radius)
     hypothesis_id = None
     for h in kvm.hypotheses.ids(skill=culprit):
@@ -528,7 +537,7 @@ def _learn_from_demonstration(
         kvm.add_safe(seen, skills, routine=False, demo=True)
         failure.positives.append((seen, skills.to(device)))
     experience = failure.experience
-    unknown = ~experience.known(d_raw, cfg.known_safe_quantile) | experience.departed(d_raw, cfg.departure_radius)
+    unknown = ~experience.known(d_raw, KNOWN_SAFE_QUANTILE) | experience.departed(d_raw, cfg.departure_radius)
     failure.demo_negative_steps = _steps(unknown)
     if bool(unknown.any()):
         n = int(unknown.sum())
@@ -594,12 +603,12 @@ def _new_skill_name(policy: FeedbackPolicy) -> str:
 def _begin_gap_skill(policy: FeedbackPolicy, hypothesis_id: int, culprit: int, task: str) -> int:
     """A new skill that corrects the culprit (see `fusion.correction_validity`): out of force where the gate is
     closed, so the contexts where the culprit is still right (inside the safe experience) keep their prompt.
-    It starts as a copy of the culprit (`kvm.gap_init`)."""
+    It starts as a copy of the culprit: the safe strategy is mostly a variation of the obsolete one, and the
+    backbone knows that prompt."""
     name = _new_skill_name(policy)
     description = f"created by the KVM: '{policy.skills[culprit].name}' risky on '{task}'"
     index = policy.begin_new_skill(name, description, corrects=culprit)
-    if policy.config.kvm.gap_init == "culprit":
-        policy.pool.copy_skill(culprit, index)
+    policy.pool.copy_skill(culprit, index)
     policy.kvm.hypotheses.mark_gap(hypothesis_id, index)
     return index
 
@@ -634,13 +643,10 @@ def _gap_skill(
 def _focus(policy: FeedbackPolicy, index: int, frames: dict[str, Any], query: Tensor, steps: int) -> dict[str, Any]:
     """`steps` of focused fine-tuning of a new skill on its seed frames; its keys are pushed away from every
     other query the KVM has seen safe."""
-    cfg = policy.config.kvm
     kvm = policy.kvm
     known = kvm.safe_offline.data[kvm.safe_offline.filled()][:, kvm.encoder.sensed_dim :] / kvm.encoder.query_scale
     other = known[(F.normalize(known, dim=-1) @ query.T).amax(-1) < 0.999] if len(known) else known
-    focused = focused_finetune(
-        policy, frames, index, steps, cfg.focused_lr, cfg.focused_key_weight, torch.unique(other, dim=0)
-    )
+    focused = focused_finetune(policy, frames, index, steps, FOCUSED_LR, FOCUSED_KEY_WEIGHT, torch.unique(other, dim=0))
     return {"seed_frames": frames[ACTION].shape[0], "seed_tasks": sorted(set(frames["task"])), **focused}
 
 
@@ -663,7 +669,7 @@ def _create_skill(
     if demonstration is not None:
         parts.append(_demo_frames(policy, demonstration))
     if not parts:
-        return {"created": False, "reason": "no seed observations (trace_observations=False and no demonstration)"}
+        return {"created": False, "reason": "no seed observations (a batched trace and no demonstration)"}
     frames = _cat_frames(parts)
     index = _begin_gap_skill(policy, hypothesis_id, culprit, task)
     device = policy.query_fingerprint.device

@@ -38,6 +38,9 @@ LATER_STATE = ("kvm.metabolism.streak",)
 # skills are learned, so a checkpoint refuses to run with an encoder that embeds it differently.
 _QUERY_PROBE = "pick up the object and place it on the target"
 _QUERY_TOLERANCE = 1e-4
+# The KVM's offline loss added to the action loss in `forward` (§3.3; the KVM's parameters are disjoint from the
+# core's, so the weight only sets its share of the gradient clipping and the learning rate).
+KVM_LOSS_WEIGHT = 0.1
 
 
 class CodaKvmPolicy(PreTrainedPolicy):
@@ -57,7 +60,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
             n_cameras=len(config.image_features),
             state_dim=config.state_dim,
             context_dim=config.context_dim,
-            context_frames=config.kvm.context_frames,
             action_dim=config.action_dim,
             chunk_size=config.chunk_size,
             vision_channels=list(config.vision_channels),
@@ -137,7 +139,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
 
     def kvm_set_episode_labels(self, episodes: Sequence[dict]) -> int:
         """Labels of dataset episodes (`load_labels(root)["episodes"]`) for offline KVM learning."""
-        return self.kvm.labels.load(episodes, use_shifted=self.config.kvm.use_shifted_offline)
+        return self.kvm.labels.load(episodes)
 
     @property
     def kvm_telemetry(self) -> KvmStepTelemetry | None:
@@ -234,7 +236,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self._kvm_trace = KvmTrace()
         self._kvm_telemetry = None
         self._queued_interventions: Tensor | None = None
-        self.kvm.reset_runtime()
 
     def forward(
         self, batch: dict[str, Any], reduction: str = "mean", skill_weights: Tensor | None = None
@@ -244,8 +245,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
             raise ValueError(f"reduction must be 'mean' or 'none', got {reduction!r}")
         batch_size = self._check_observation(batch)
         query = self.encode_query(self._tasks(batch, batch_size))
-        if skill_weights is None and self.training and self.config.skill_dropout > 0 and self.n_skills > 1:
-            skill_weights = self._skill_dropout_weights(batch_size, query.device)
         pred = self.decode(batch, self.pool.component_alphas(query), skill_weights)
         target, valid = self._check_action(batch, pred.shape[0])
         err = (pred - target).abs() * valid.unsqueeze(-1)
@@ -265,16 +264,9 @@ class CodaKvmPolicy(PreTrainedPolicy):
             info["ortho_loss"] = ortho.item()
         if self.training and self.config.kvm.learn_offline and torch.is_grad_enabled():
             kvm_loss, kvm_info = self._kvm_offline_loss(batch, query, batch_size)
-            loss = loss + self.config.kvm.loss_weight * kvm_loss
+            loss = loss + KVM_LOSS_WEIGHT * kvm_loss
             info.update(kvm_info)
         return loss, info
-
-    def _skill_dropout_weights(self, batch_size: int, device: torch.device) -> Tensor:
-        """[B, n_skills] ones, with the earlier skills zeroed for a random `skill_dropout` share of the samples."""
-        weights = torch.ones(batch_size, self.n_skills, device=device)
-        alone = torch.rand(batch_size, device=device) < self.config.skill_dropout
-        weights[alone, :-1] = 0.0
-        return weights
 
     def kvm_learn_offline(self, batch: dict[str, Any]) -> tuple[Tensor, dict[str, float]]:
         """The KVM's offline learning step alone (the term `forward()` adds to the action loss in training):
@@ -333,8 +325,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
             if self.config.kvm.assess_every_step:
                 self._queued_interventions = None if telemetry is None else telemetry.intervention
         action = self._action_queue.popleft()
-        if self.config.kvm.record_trace:
-            self._record_step(batch, action)
+        self._record_step(batch, action)
         return action
 
     def _to_eval(self) -> None:
@@ -355,7 +346,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
         trace.tasks.append(self._tasks(batch, action.shape[0]))
         trace.actions.append(action.detach())
         trace.telemetry.append(self._kvm_telemetry)
-        if self.config.kvm.trace_observations and action.shape[0] == 1:  # batched evaluation: contexts only
+        if action.shape[0] == 1:  # seed frames of a new skill; batched evaluation: contexts only
             keys = (*self.config.image_features, OBS_STATE, self.config.context_key)
             trace.observations.append({k: batch[k].detach() for k in keys if isinstance(batch.get(k), Tensor)})
 
