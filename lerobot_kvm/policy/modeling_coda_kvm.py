@@ -307,7 +307,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self._to_eval()
         pending = None
         if self._action_queue and self.config.kvm.assess_every_step and self._kvm_active(skill_weights):
-            pending = self._assess(batch)
+            pending = self._plan(batch, skill_weights)
             self._kvm_telemetry = pending[2]
             if self._queued_interventions is not None and torch.equal(
                 pending[2].intervention, self._queued_interventions
@@ -381,11 +381,21 @@ class CodaKvmPolicy(PreTrainedPolicy):
     def _kvm_active(self, skill_weights: Tensor | None) -> bool:
         return self.config.kvm.enabled and skill_weights is None
 
-    def _assess(self, batch: dict[str, Any]) -> tuple[Tensor, Tensor | None, KvmStepTelemetry]:
-        """(component alphas, skill weights, telemetry) of one KVM assessment of the batch."""
+    def _plan(
+        self, batch: dict[str, Any], skill_weights: Tensor | None
+    ) -> tuple[Tensor, Tensor | None, KvmStepTelemetry | None]:
+        """Algorithm 1, lines 4-21, each stage once: (component alphas, skill weights, the KVM's telemetry).
+
+        The observation x_t and its sensed context (line 4) give the frozen query q(x); the CL core proposes the
+        candidate skills and their relevance (line 5: the component alphas, from which the per-skill relevance is
+        computed only when the KVM reads it); the KVM assesses their validity (lines 7-17: E_c, the smart gate,
+        energies, v) and turns it into decision weights (line 20). Explicit skill weights, or the KVM disabled,
+        skip the assessment (telemetry None)."""
         batch_size = self._check_observation(batch)
         query = self.encode_query(self._tasks(batch, batch_size))
         alphas = self.pool.component_alphas(query)
+        if not self._kvm_active(skill_weights):
+            return alphas, skill_weights, None
         n = self.n_skills
         weights, telemetry = self.kvm.assess(
             batch[self.config.context_key],
@@ -398,16 +408,9 @@ class CodaKvmPolicy(PreTrainedPolicy):
         return alphas, weights, telemetry
 
     def _infer(self, batch: dict[str, Any], skill_weights: Tensor | None) -> tuple[Tensor, KvmStepTelemetry | None]:
-        """One model call: KVM assessment (when enabled and no explicit weights) + fused prompt + backbone."""
-        if self._kvm_active(skill_weights):
-            alphas, weights, telemetry = self._assess(batch)
-            return self.decode(batch, alphas, weights), telemetry
-        return self._predict(batch, skill_weights), None
-
-    def _predict(self, batch: dict[str, Any], skill_weights: Tensor | None) -> Tensor:
-        batch_size = self._check_observation(batch)
-        query = self.encode_query(self._tasks(batch, batch_size))
-        return self.decode(batch, self.pool.component_alphas(query), skill_weights)
+        """One model call: `_plan`, then the fused prompt and the decoder (Algorithm 1, lines 21-22)."""
+        alphas, weights, telemetry = self._plan(batch, skill_weights)
+        return self.decode(batch, alphas, weights), telemetry
 
     def decode(self, batch: dict[str, Any], alphas: Tensor, skill_weights: Tensor | None) -> Tensor:
         """Eq. 4: actions from the backbone prefixed by the fused prompt (component alphas [L, B, M])."""

@@ -19,6 +19,11 @@ from lerobot_kvm.policy import CodaKvmConfig
 CONTEXT = "observation.context"
 
 
+def core_chunk(policy, batch, skill_weights=None):
+    """The CODA-Prompt core's chunk under the given skill weights (None: the plain CODA prompt), the KVM left out."""
+    return policy.decode(batch, policy.pool.component_alphas(policy.encode_query(batch["task"])), skill_weights)
+
+
 def two_skill_policy(make_policy, **overrides):
     policy = make_policy(**overrides)
     policy.begin_new_skill("gentle_grasp")
@@ -29,7 +34,7 @@ def two_skill_policy(make_policy, **overrides):
 def test_kvm_disabled_gives_exactly_the_coda_core_actions(make_policy, make_batch) -> None:
     policy = two_skill_policy(make_policy)
     batch = make_batch(policy.config, with_action=False)
-    core = policy._predict(batch, None)  # plain CODA-Prompt
+    core = core_chunk(policy, batch)  # plain CODA-Prompt
     policy.config.kvm.enabled = False
     assert torch.equal(policy.predict_action_chunk(batch), core)
     assert policy.kvm_telemetry is None
@@ -40,7 +45,7 @@ def test_kvm_disabled_gives_exactly_the_coda_core_actions(make_policy, make_batc
 def test_every_v_forced_to_one_gives_exactly_the_coda_core_actions(make_policy, make_batch, make_kvm_config) -> None:
     policy = two_skill_policy(make_policy, kvm=make_kvm_config(force_validity=1.0, smart_gate=False))
     batch = make_batch(policy.config, with_action=False)
-    core = policy._predict(batch, None)
+    core = core_chunk(policy, batch)
     assert torch.equal(policy.predict_action_chunk(batch), core)
     tele = policy.kvm_telemetry
     assert tele.gate.all() and torch.equal(tele.validity, torch.ones(4, 2))
@@ -50,7 +55,7 @@ def test_every_v_forced_to_one_gives_exactly_the_coda_core_actions(make_policy, 
 def test_closed_gate_gives_exactly_the_coda_core_actions(make_policy, make_batch) -> None:
     policy = two_skill_policy(make_policy)
     batch = make_batch(policy.config, with_action=False)
-    core = policy._predict(batch, None)
+    core = core_chunk(policy, batch)
     policy.kvm.set_gate_override("closed")
     assert torch.equal(policy.predict_action_chunk(batch), core)
     assert not policy.kvm_telemetry.gate.any() and torch.isnan(policy.kvm_telemetry.energy).all()
@@ -81,8 +86,8 @@ def test_a_correction_is_out_of_force_with_the_gate_closed_and_takes_over_where_
     tele = policy.kvm_telemetry
     assert torch.equal(tele.skill_weight, without_fix) and torch.equal(tele.validity, torch.ones(4, 2))
     assert not tele.intervention.any()  # leaving an unassessed correction out is no suppression
-    assert torch.equal(closed, policy._predict(batch, without_fix))
-    assert not torch.equal(closed, policy._predict(batch, None))
+    assert torch.equal(closed, core_chunk(policy, batch, without_fix))
+    assert not torch.equal(closed, core_chunk(policy, batch))
     policy.kvm.set_gate_override("open")
     policy.predict_action_chunk(batch)
     tele = policy.kvm_telemetry
