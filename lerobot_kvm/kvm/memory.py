@@ -20,9 +20,7 @@ from torch import Tensor, nn
 # Flags of a stored sample.
 ROUTINE = 1  # a safe sample from routine experience (no intervention): trains sigma_c^2, feeds the gate window
 PERMANENT = 2  # a confirmed h_fail negative: never evicted
-PROVISIONAL = 4  # a negative from an unconfirmed hypothesis
 DEMO = 8  # from a corrective demonstration
-SYNTHETIC = 16
 
 MODES = ("ring", "reservoir", "protected")
 

@@ -33,7 +33,7 @@ from .losses import (
     energy_loss,
     total_loss,
 )
-from .memory import DEMO, PERMANENT, ROUTINE, SYNTHETIC, EpisodeLabels, SampleBuffer
+from .memory import DEMO, PERMANENT, ROUTINE, EpisodeLabels, SampleBuffer
 from .metabolism import METABOLISM_WINDOW, PRUNE_MIN_INTERACTIONS, PRUNE_THRESHOLD, SkillMetabolism
 from .neighbour import NEIGHBOUR_QUANTILE, NEIGHBOUR_SLOPE, NeighbourEnergy, calibrate
 from .telemetry import KvmStepTelemetry
@@ -650,4 +650,4 @@ def _at_most(values: Tensor, bound: float) -> bool:
     return float(values if values.numel() == 1 else values.max()) <= bound
 
 
-__all__ = ["KnowledgeValidityModule", "SYNTHETIC"]
+__all__ = ["KnowledgeValidityModule"]
