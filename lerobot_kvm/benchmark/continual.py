@@ -27,11 +27,11 @@ from typing import Any
 
 from tqdm import tqdm
 
-from ..cli.lerobot_commands import eval_command, run_logged, train_command
-from ..datasets.recorder import RecordingSpec, RecordItem, load_labels, record_dataset
+from ..datasets.labels import load_labels
+from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
 from ..envs.scenario import make_scenario
-from ..envs.sensing import check_lags
 from .cl_metrics import cl_metrics, joint_metrics
+from .lerobot_commands import eval_command, run_logged, train_command
 from .resume import check_settings
 
 CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"
@@ -125,15 +125,10 @@ class SequenceConfig:
     eval_episodes: int = 10
     eval_seed: int = 100_000  # far from the recording seeds: evaluation starts are held out
     dataset_root: str | None = None
-    # The environment's `context_lags` (`--env.context_lags`): every episode is recorded, evaluated and challenged
-    # with each step's context joined to the frames these many steps before it; `coda_kvm` reads the window as
-    # `kvm.context_frames` = 1 + their number. Empty: the frame alone.
-    context_lags: list[int] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if not self.tasks:
             raise ValueError("a sequence needs at least one task")
-        check_lags(self.context_lags)
         names = [t.name for t in self.tasks]
         names += [t.name for t in self.pretrain_tasks]
         if len(set(names)) != len(names):
@@ -166,23 +161,7 @@ class SequenceConfig:
     def recording_spec(self) -> RecordingSpec:
         items = [t.record_item(self.pretrain_episodes_per_task) for t in self.pretrain_tasks]
         items += [t.record_item(self.episodes_per_task) for t in self.tasks]
-        return RecordingSpec(name=f"kvm_cl_{self.name}", items=items, seed=self.seed, context_lags=self.context_lags)
-
-    @property
-    def env_args(self) -> list[str]:
-        """The `lerobot-eval` environment arguments every evaluation of the sequence shares."""
-        return [f"--env.context_lags=[{','.join(map(str, self.context_lags))}]"] if self.context_lags else []
-
-
-def check_dataset_window(dataset_root: Path, context_lags: Sequence[int]) -> None:
-    """A reused dataset must have been recorded with the sequence's context window: its observations' context
-    has one frame per lag, and the policy is built for exactly that many."""
-    recorded = list(load_labels(dataset_root)["spec"].get("context_lags", []))
-    if recorded != list(context_lags):
-        raise ValueError(
-            f"dataset {dataset_root} was recorded with context_lags={recorded}, the sequence asks for "
-            f"{list(context_lags)}: give the sequence its own dataset (--dataset-root or `dataset_root`)"
-        )
+        return RecordingSpec(name=f"kvm_cl_{self.name}", items=items, seed=self.seed)
 
 
 def task_episodes(dataset_root: Path, tasks: Sequence[TaskSpec]) -> list[list[int]]:
@@ -282,8 +261,6 @@ class ContinualRun:
             args = [f"--policy.path={previous}", *method.args, *method.later_stage_args]
         if method.policy == "coda_kvm" and skill is not None:
             args.append(f"--policy.skill_name={skill}")
-        if method.policy == "coda_kvm" and previous is None and self.config.context_lags:
-            args.append(f"--policy.kvm.context_frames={1 + len(self.config.context_lags)}")  # later stages keep it
         return args
 
     def _pretrain(self, method: MethodSpec, episodes: list[list[int]], bar: tqdm) -> Path | None:
@@ -351,7 +328,7 @@ class ContinualRun:
                     self.config.eval_episodes,
                     self.config.eval_seed,
                     instruction,
-                    [*self.config.env_args, *extra],
+                    list(extra),
                     self.device,
                 )
                 run_logged(cmd, eval_dir / f"{variant}_{instruction}.log")
@@ -412,7 +389,6 @@ class ContinualRun:
         if not self.dataset_root.exists():
             print(f"recording {self.dataset_root}")
             record_dataset(self.config.recording_spec(), self.dataset_root, repo_id=self.config.repo_id)
-        check_dataset_window(self.dataset_root, self.config.context_lags)
         episodes = task_episodes(self.dataset_root, self.config.tasks)
         pretrain_episodes = task_episodes(self.dataset_root, self.config.pretrain_tasks)
         n_jobs = sum(

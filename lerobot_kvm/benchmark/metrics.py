@@ -26,7 +26,7 @@ from collections.abc import Iterable, Sequence
 from statistics import mean
 from typing import Any
 
-from ..kvm.evaluation import auroc
+from ..evaluation.rollouts import auroc
 from .intervals import Counts, paired_difference, rate_interval
 
 Record = dict[str, Any]

@@ -188,11 +188,10 @@ VALIDITY_MARKERS = (  # (row key, label, marker, filled): the KVM's AUROC and th
 )
 
 
-def plot_validity_check(rows: list[dict], path: Path, threshold: float = 0.95, setting: str = "") -> Path:
+def plot_validity_check(rows: list[dict], path: Path, threshold: float = 0.95) -> Path:
     """One line per scenario: the KVM's AUROC at each seed against the nearest-neighbour references that are told
     the shift steps, and the acceptance threshold, so a reader sees which scenarios miss and whether their sensed
-    context carries the shift at all. Scenarios are sorted by the KVM's lowest AUROC; red names fail at a seed.
-    `setting` names what was checked, in the title."""
+    context carries the shift at all. Scenarios are sorted by the KVM's lowest AUROC; red names fail at a seed."""
     if not rows:
         raise ValueError("no kvm-check rows to plot")
     ids = sorted({r["id"] for r in rows}, key=lambda i: min(r.get("auroc") or 0.0 for r in rows if r["id"] == i))
@@ -217,7 +216,7 @@ def plot_validity_check(rows: list[dict], path: Path, threshold: float = 0.95, s
     ax.invert_yaxis()
     ax.set_xlabel("AUROC: hazardous vs safe (skill, context) pairs")
     title = f"kvm-check: {len(ids)} scenarios, seeds {', '.join(map(str, seeds))}"
-    ax.set_title(f"{title} ({setting})" if setting else title)
+    ax.set_title(title)
     ax.grid(axis="x", alpha=0.3)
     ax.legend(fontsize="small", loc="best")
     return _save(fig, path)

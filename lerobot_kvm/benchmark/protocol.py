@@ -35,10 +35,10 @@ from tqdm import tqdm
 
 from ..envs.env import KvmObsolescenceEnv
 from ..envs.scenario import SCENARIOS
+from ..evaluation.rollouts import expert_rollout, policy_processors, run_attempt
+from ..evaluation.validity_check import CONTEXT, shift_step
 from ..kvm.configuration import KvmConfig
-from ..kvm.evaluation import expert_rollout, policy_processors, run_attempt
-from ..kvm.online import chunk_targets, skill_by_name
-from ..kvm.validity_check import CONTEXT, shift_step
+from ..policy.feedback import chunk_targets, skill_by_name
 from .continual import ContinualRun, SequenceConfig, read_config
 from .resume import check_settings
 
@@ -212,10 +212,9 @@ def episode_fields(result: dict[str, Any]) -> dict[str, Any]:
 @torch.no_grad()
 def prior_skill_scores(policy: Any, demos: list[dict[str, Any]], skill: int) -> tuple[list[float], list[float]]:
     """(v, E) of one skill along demonstrations' contexts, the gate bypassed (the risk model's judgement)."""
-    from ..kvm.energy import validity
+    from ..kvm.energy import GAMMA, L0, validity
 
     kvm = policy.kvm
-    cfg = policy.config.kvm
     v_all, e_all = [], []
     for demo in demos:
         if not len(demo["task"]):
@@ -223,7 +222,7 @@ def prior_skill_scores(policy: Any, demos: list[dict[str, Any]], skill: int) -> 
         c_raw = kvm.raw_context(demo[CONTEXT], policy.encode_query(demo["task"]))
         mu, _, _ = kvm.encode(c_raw)
         energy = kvm.skill_energies(mu, c_raw, policy.n_skills)[:, skill]
-        v_all += validity(energy, cfg.gamma, cfg.l0).tolist()
+        v_all += validity(energy, GAMMA, L0).tolist()
         e_all += energy.tolist()
     return v_all, e_all
 
@@ -358,8 +357,8 @@ class Benchmark:
             shutil.rmtree(partial / f"pass_{older}", ignore_errors=True)
 
     def _env(self, scenario: str, variant: str) -> KvmObsolescenceEnv:
-        """The scenario's environment, sensing as the pool's datasets were recorded (the sequence's context lags)."""
-        return KvmObsolescenceEnv(scenario, variant=variant, context_lags=tuple(self.sequence.context_lags))
+        """The scenario's environment, sensing as the pool's datasets were recorded."""
+        return KvmObsolescenceEnv(scenario, variant=variant)
 
     def _challenge(
         self, method: str, policy: Any, pre: Any, post: Any, base: dict[str, Any], seed: int, out: dict[str, Any]
@@ -549,14 +548,10 @@ class Benchmark:
         path = self.out / "overhead.json"
         if path.exists():
             return json.loads(path.read_text())
-        from ..cli.overhead import observation_inputs
-        from ..kvm.overhead import measure_overhead
+        from ..evaluation.overhead import measure_overhead, observation_inputs
 
         policy, _, _ = load_policy("coda_kvm", checkpoint, device=self.device)  # the checkpoint's own KVM settings
-        lags = tuple(self.sequence.context_lags)
-        batch, source = observation_inputs(
-            policy, checkpoint, self.config.scenarios[0], "prior", self.config.seed, lags
-        )
+        batch, source = observation_inputs(policy, checkpoint, self.config.scenarios[0], "prior", self.config.seed)
         result = measure_overhead(policy, batch, steps=self.config.overhead_steps)
         kvm_bytes = sum(t.numel() * t.element_size() for t in policy.kvm.state_dict().values())
         total_bytes = sum(t.numel() * t.element_size() for t in policy.state_dict().values())

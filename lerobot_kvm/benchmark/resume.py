@@ -19,7 +19,7 @@ def _describe(value: Any) -> str:
 
 def _flat(value: Any, path: str = "") -> dict[str, Any]:
     """Nested settings by path ('recording.items[0].episodes'), so that a difference names the setting itself.
-    A list of plain values stays whole (`scenarios`, `context_lags`)."""
+    A list of plain values stays whole (`scenarios`)."""
     if isinstance(value, dict):
         items = [(f"{path}.{k}" if path else str(k), v) for k, v in value.items()]
     elif isinstance(value, list) and any(isinstance(v, dict | list) for v in value):

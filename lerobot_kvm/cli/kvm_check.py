@@ -8,8 +8,7 @@ import json
 from pathlib import Path
 
 from ..envs.scenario import resolve_tasks
-from ..envs.sensing import check_lags
-from ..kvm.configuration import NEIGHBOUR_SPACES, ONLINE_ENCODERS, RISK_MODELS, KvmConfig
+from ..kvm.configuration import RISK_MODELS, KvmConfig
 from .table import results_table
 
 COLUMNS = (
@@ -94,15 +93,6 @@ def seed_list(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"seeds must be comma-separated integers, got {text!r}") from None
 
 
-def lag_list(text: str) -> tuple[int, ...]:
-    try:
-        return check_lags([int(s) for s in text.split(",") if s.strip()])
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"context lags must be comma-separated positive integers, got {text!r}"
-        ) from None
-
-
 def run(args: argparse.Namespace) -> int:
     report = load_report(Path(args.from_json)) if args.from_json else measure(args)
     seeds = report["seeds"]
@@ -121,10 +111,8 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         from ..benchmark.plots import plot_validity_check
 
-        lags = report["settings"].get("context_lags")
-        setting = f"context lags {', '.join(map(str, lags))}" if lags else ""
         threshold = report["thresholds"]["min_auroc"]
-        print(f"wrote {plot_validity_check(report['scenarios'], Path(args.plot), threshold, setting)}")
+        print(f"wrote {plot_validity_check(report['scenarios'], Path(args.plot), threshold)}")
     per_seed = ", ".join(f"{n} at seed {s}" for n, s in zip(report["n_pass_per_seed"], seeds, strict=True))
     print(f"{report['n_pass']}/{report['n_scenarios']} scenarios pass at every seed ({per_seed})")
     return 0
@@ -143,7 +131,7 @@ def load_report(path: Path) -> dict:
 
 
 def measure(args: argparse.Namespace) -> dict:
-    from ..kvm.validity_check import check_validity_suite
+    from ..evaluation.validity_check import check_validity_suite
 
     return check_validity_suite(
         resolve_tasks(args.tasks),
@@ -151,12 +139,8 @@ def measure(args: argparse.Namespace) -> dict:
         episodes=args.episodes,
         held_out=args.held_out,
         offline_steps=(args.offline_steps, args.new_skill_steps),
-        online_encoder=args.online_encoder,
         feedback_steps=args.feedback_steps,
         risk_model=args.risk_model,
-        neighbour_space=args.neighbour_space,
-        context_lags=args.context_lags,
-        fail_context_last=args.fail_context_last,
     )
 
 
@@ -177,7 +161,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--held-out", type=int, default=4, help="held-out seeds per (variant, skill)")
     p.add_argument("--offline-steps", type=int, default=300, help="training steps on the prior skill (core, KVM)")
     p.add_argument("--new-skill-steps", type=int, default=200, help="training steps on the safe skill (core, KVM)")
-    kvm_choice(p, "online_encoder", ONLINE_ENCODERS, "what E_c learns from the feedback")
     p.add_argument(
         "--feedback-steps",
         type=int,
@@ -185,21 +168,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="gradient steps of the one feedback (policy.kvm.feedback_steps; the benchmark gives every method 100)",
     )
     kvm_choice(p, "risk_model", RISK_MODELS, "how the KVM scores a (context, skill) pair")
-    kvm_choice(p, "neighbour_space", NEIGHBOUR_SPACES, "where the neighbour risk model searches: codes or raw contexts")
-    p.add_argument(
-        "--context-lags",
-        type=lag_list,
-        default=(),
-        help="record the sensed context with the frames these many steps earlier (e.g. 1,2,4,8; env.context_lags), "
-        "read by the KVM as the window and its current frame (policy.kvm.context_frames)",
-    )
-    p.add_argument(
-        "--fail-context-last",
-        type=int,
-        default=KvmConfig.fail_context_last,
-        help="the last steps of a failure that are failure context whatever the safe experience says "
-        "(policy.kvm.fail_context_last)",
-    )
     p.add_argument(
         "--seeds", type=seed_list, default=(0,), help="comma-separated seeds; each scenario is checked at each of them"
     )

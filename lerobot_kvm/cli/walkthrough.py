@@ -11,9 +11,10 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
+from ..benchmark.lerobot_commands import eval_command, run_logged, train_command
 from ..benchmark.resume import check_settings, differences
-from ..datasets.recorder import RecordingSpec, load_labels, record_dataset
-from .lerobot_commands import eval_command, run_logged, train_command
+from ..datasets.labels import load_labels
+from ..datasets.recorder import RecordingSpec, record_dataset
 
 DEFAULT_SPEC = Path(__file__).resolve().parents[2] / "datasets" / "specs" / "egg_vs_stone_demo.json"
 

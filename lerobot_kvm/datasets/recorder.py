@@ -8,7 +8,6 @@ target root.
 import json
 import os
 import shutil
-from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -22,8 +21,8 @@ from ..envs.configuration_kvm_obsolescence import OBS_CONTEXT
 from ..envs.env import KvmObsolescenceEnv
 from ..envs.scenario import make_scenario
 from ..envs.sensing import ACTION_NAMES, STATE_NAMES, context_names
+from .labels import LABELS_FILE
 
-LABELS_FILE = "meta/kvm_labels.json"
 OUTCOMES = ("success", "failure", "catastrophe")
 LABEL_KEYS = ("label.skill", "label.scenario", "label.variant", "label.outcome")
 
@@ -69,7 +68,6 @@ class RecordingSpec:
     fps: int = 20
     image_size: int = 96
     keep_failures: bool = False  # expert episodes that fail are dropped unless kept as negatives
-    context_lags: list[int] = field(default_factory=list)  # the environment's `context_lags`
     extra: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -91,9 +89,9 @@ class RecordingSpec:
         }
 
 
-def dataset_features(image_size: int, context_lags: Sequence[int] = ()) -> dict:
+def dataset_features(image_size: int) -> dict:
     scalar = {"dtype": "int64", "shape": (1,), "names": None}
-    names = context_names(context_lags)
+    names = context_names()
     return {
         "observation.images.front": {
             "dtype": "image",
@@ -149,7 +147,7 @@ def record_dataset(
         ds = LeRobotDataset.create(
             repo_id=repo_id,
             fps=spec.fps,
-            features=dataset_features(spec.image_size, spec.context_lags),
+            features=dataset_features(spec.image_size),
             root=tmp,
             use_videos=False,
         )
@@ -162,7 +160,6 @@ def record_dataset(
                 variant=item.variant,
                 image_size=spec.image_size,
                 fps=spec.fps,
-                context_lags=tuple(spec.context_lags),
             )
             counts = dict.fromkeys(OUTCOMES, 0)
             task = item.task_string()
@@ -213,15 +210,3 @@ def record_dataset(
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return {"root": str(root), "repo_id": repo_id, "episodes": ds.num_episodes, "items": summary}
-
-
-def load_labels(root: str | Path) -> dict:
-    """The training-only labels of a recorded dataset: `vocab`, `spec`, `summary`, `episodes`."""
-    path = Path(root) / LABELS_FILE
-    if not path.exists():
-        raise FileNotFoundError(f"{path} missing: {root} was not recorded by lerobot-kvm record")
-    return json.loads(path.read_text())
-
-
-def load_label_vocab(root: str | Path) -> dict[str, list[str]]:
-    return load_labels(root)["vocab"]

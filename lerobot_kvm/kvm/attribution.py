@@ -28,6 +28,7 @@ from torch import Tensor, nn
 
 EMPTY, OPEN, CONFIRMED = 0, 1, 2
 STATE_NAMES = {EMPTY: "empty", OPEN: "open", CONFIRMED: "confirmed"}
+PERSISTENCE = 3  # App. D, App. E: N_p, a hypothesis is confirmed when its intervention counter exceeds it
 
 
 class HypothesisTable(nn.Module):
@@ -185,3 +186,15 @@ def knowledge_gap(relevance: Tensor, culprit: int, active: Tensor, gap_alpha: fl
     if not bool(alternatives.any()):
         return True
     return bool(relevance[:, alternatives].mean(0).max() < gap_alpha)
+
+
+def demonstrated_skill(relevance: Tensor, culprit: int, active: Tensor) -> int | None:
+    """The skill an unnamed corrective demonstration shows: the most relevant active alternative to the culprit.
+
+    relevance: [T, S] normalised relevance over the demonstration's steps."""
+    alternatives = active.clone()
+    alternatives[culprit] = False
+    if not bool(alternatives.any()):
+        return None
+    mean = relevance.mean(0).masked_fill(~alternatives, float("-inf"))
+    return int(mean.argmax())

@@ -14,9 +14,7 @@ so that neither modality drowns the other (contact transients make the sensed re
 memorised instruction reconstructs almost exactly, so an unfamiliar one stands out by orders of magnitude).
 The decoder learns only from routine safe contexts (on the raw residual r_sensed + query_weight * r_query),
 so sigma_c^2 stays low on the safe experience and rises when the interaction leaves it (unfamiliar forces,
-an unfamiliar object or instruction): the novelty signal the smart gate (eq. 1) thresholds. Where the sensed
-context joins earlier frames to the current one (`kvm.context_frames`), E_c reads the current frame and the query
-only: novelty is a property of the step itself, and a wider input costs the gate margin on routine steps.
+an unfamiliar object or instruction): the novelty signal the smart gate (eq. 1) thresholds.
 """
 
 import math
@@ -43,8 +41,7 @@ def mlp(in_dim: int, hidden: list[int], out_dim: int) -> nn.Sequential:
 
 
 class ContextEncoder(nn.Module):
-    """E_c over the current frame of c_raw: with a sensed context of `frames` frames (the current one first), it
-    encodes and reconstructs the first frame and the query (`frame_view`); c_raw itself keeps them all."""
+    """E_c: encodes c_raw to mu_c and reconstructs it."""
 
     def __init__(
         self,
@@ -54,26 +51,15 @@ class ContextEncoder(nn.Module):
         latent_dim: int,
         use_query: bool,
         query_weight: float,
-        frames: int = 1,
     ) -> None:
         super().__init__()
-        if sensed_dim % frames:
-            raise ValueError(f"a sensed context of {sensed_dim} channels cannot hold {frames} frames of equal size")
         self.sensed_dim = sensed_dim
-        self.frame_dim = sensed_dim // frames
         self.query_dim = query_dim if use_query else 0
         self.raw_dim = sensed_dim + self.query_dim
         self.query_scale = math.sqrt(query_dim)
         self.query_weight = query_weight
-        view_dim = self.frame_dim + self.query_dim
-        self.encoder = mlp(view_dim, list(hidden), latent_dim)
-        self.decoder = mlp(latent_dim, list(reversed(hidden)), view_dim)
-
-    def frame_view(self, c_raw: Tensor) -> Tensor:
-        """[..., frame_dim (+ query)]: c_raw without the earlier frames (c_raw itself when it has none)."""
-        if self.frame_dim == self.sensed_dim:
-            return c_raw
-        return torch.cat([c_raw[..., : self.frame_dim], c_raw[..., self.sensed_dim :]], dim=-1)
+        self.encoder = mlp(self.raw_dim, list(hidden), latent_dim)
+        self.decoder = mlp(latent_dim, list(reversed(hidden)), self.raw_dim)
 
     def raw_context(self, sensed: Tensor, query: Tensor | None) -> Tensor:
         """c_raw [B, raw_dim] from the normalized sensed context [B, C] and the query embedding [B, D_q]."""
@@ -82,13 +68,12 @@ class ContextEncoder(nn.Module):
         query = _required(query)
         return torch.cat([sensed, query.to(sensed) * self.query_scale], dim=-1)
 
-    def residual_parts(self, view: Tensor, recon: Tensor) -> Tensor:
-        """[B, P] mean squared residual per modality of a `frame_view`: sensed, then query (P = 2 with the query,
-        else 1)."""
-        sq = (view - recon) ** 2
-        parts = [sq[..., : self.frame_dim].mean(-1)]
+    def residual_parts(self, c_raw: Tensor, recon: Tensor) -> Tensor:
+        """[B, P] mean squared residual per modality: sensed, then query (P = 2 with the query, else 1)."""
+        sq = (c_raw - recon) ** 2
+        parts = [sq[..., : self.sensed_dim].mean(-1)]
         if self.query_dim:
-            parts.append(sq[..., self.frame_dim :].mean(-1))
+            parts.append(sq[..., self.sensed_dim :].mean(-1))
         return torch.stack(parts, dim=-1)
 
     def weights(self) -> list[float]:
@@ -103,8 +88,8 @@ class ContextEncoder(nn.Module):
         return (parts / scale * parts.new_tensor(self.weights())).sum(-1)
 
     def dim_weights(self, scale: Tensor) -> Tensor:
-        """[frame_dim (+ query)] per-dimension weights with sigma2(parts, scale) == squared residual @ dim_weights."""
-        w = [torch.full((self.frame_dim,), 1.0 / (self.frame_dim * float(scale[0])))]
+        """[raw_dim] per-dimension weights with sigma2(parts, scale) == squared residual @ dim_weights."""
+        w = [torch.full((self.sensed_dim,), 1.0 / (self.sensed_dim * float(scale[0])))]
         if self.query_dim:
             w.append(torch.full((self.query_dim,), self.query_weight / (self.query_dim * float(scale[1]))))
         return torch.cat(w).to(scale.device)
@@ -115,9 +100,8 @@ class ContextEncoder(nn.Module):
 
     def forward(self, c_raw: Tensor) -> tuple[Tensor, Tensor]:
         """(mu_c [B, latent_dim], residual parts [B, P])."""
-        view = self.frame_view(c_raw)
-        mu = self.encoder(view)
-        return mu, self.residual_parts(view, self.decoder(mu))
+        mu = self.encoder(c_raw)
+        return mu, self.residual_parts(c_raw, self.decoder(mu))
 
 
 class GateProbe:
@@ -141,8 +125,7 @@ class GateProbe:
     def __init__(self, encoder: ContextEncoder, dim_weights: Tensor) -> None:
         enc = [m for m in encoder.encoder if isinstance(m, nn.Linear)]
         dec = [m for m in encoder.decoder if isinstance(m, nn.Linear)]
-        sensed = self.sensed_dim = encoder.frame_dim
-        self.windowed = encoder.sensed_dim != encoder.frame_dim  # the sensed context has earlier frames to skip
+        sensed = self.sensed_dim = encoder.sensed_dim
         self.uses_query = bool(encoder.query_dim)
         first = enc[0].weight.detach()
         self.sensed_first = first[:, :sensed].T.contiguous()  # [C, H]: the right operand of addmm
@@ -185,11 +168,8 @@ class GateProbe:
         return self._query_terms
 
     def __call__(self, sensed: Tensor, query: Tensor | None) -> tuple[Tensor, Tensor]:
-        """(sigma_c^2 [B], the encoder's last hidden layer [B, H]) of the normalized sensed context [B, C] (its
-        current frame is read) and the query embedding [B, D_q] (unscaled, as `ContextEncoder.raw_context` takes
-        it)."""
-        if self.windowed:
-            sensed = sensed[:, : self.sensed_dim]
+        """(sigma_c^2 [B], the encoder's last hidden layer [B, H]) of the normalized sensed context [B, C] and the
+        query embedding [B, D_q] (unscaled, as `ContextEncoder.raw_context` takes it)."""
         first, offset = self._terms(query, sensed)
         h = hidden = torch.addmm(first, sensed, self.sensed_first).relu_()
         for i, (bias, weight) in enumerate(self.layers, 1):

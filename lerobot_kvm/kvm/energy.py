@@ -22,6 +22,10 @@ from torch import Tensor, nn
 
 from .context_encoder import mlp
 
+GAMMA = 1.0  # eq. 2, App. E: gamma
+L0 = -5.0  # eq. 2, App. E: l0' (v = 1/2 at E = 5)
+ENERGY_MAX = 20.0  # eq. 11's bound E = E_max * tanh(raw / E_max), so that eq. 6's first term cannot run away
+
 
 def validity(energy: Tensor, gamma: float, l0: float) -> Tensor:
     """Eq. 2: v = 1 / (1 + exp(-gamma * (-E - l0'))), written -gamma * (E + l0') (the same floats, one operation

@@ -6,13 +6,10 @@ experience and, in a failure, stays out of it until the end. Both are measured i
 own spread: how far the safe samples of one recorded episode lie from those of another.
 """
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
-
-View = Callable[[Tensor], Tensor]  # contexts [..., D] -> the part of them a view reads
 
 
 @dataclass
@@ -47,20 +44,3 @@ class SafeExperience:
         close = torch.nonzero(self.distance(c_raw) <= radius * torch.quantile(self.spread, 0.5)).flatten()
         out[int(close[-1]) + 1 if len(close) else 0 :] = True
         return out
-
-
-@dataclass
-class ExperienceViews:
-    """A skill's safe experience seen in several views of its contexts (`views`: each a function of c_raw and the
-    experience of the rows it reads), e.g. the context window and its current frame: a context is known only where
-    every view knows it, and an attempt has departed from the steps where it has in any view."""
-
-    views: list[tuple[View, SafeExperience]]
-
-    def known(self, c_raw: Tensor, quantile: float) -> Tensor:
-        known = [experience.known(view(c_raw), quantile) for view, experience in self.views]
-        return torch.stack(known).all(0)
-
-    def departed(self, c_raw: Tensor, radius: float | None) -> Tensor:
-        departed = [experience.departed(view(c_raw), radius) for view, experience in self.views]
-        return torch.stack(departed).any(0)

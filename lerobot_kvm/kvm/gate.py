@@ -2,25 +2,18 @@
 the last N successful interactions.
 
 The window stores those interactions themselves (their raw contexts, a ring of N control steps from successful
-routine episodes: dataset frames during `lerobot-train`, successful attempts without intervention online).
-Optionally a long-term safe memory joins it (`kvm.gate_safe_memory`): a uniform sample of every skill's routine
-frames, so that a learner grown task by task does not find its earlier tasks novel just because the last N
-interactions all come from the latest one. Whenever the encoder, the window or the memory has changed, these safe
-references are re-encoded: the mean residual of each modality there is the scale sigma_c^2 is measured in (see
-`context_encoder`), and mean/std of the resulting sigma^2 give tau. So tau always describes the safe experience as
-the encoder sees it now; the scales and mean/std/tau are persistent buffers. With fewer than `min_count`
-interactions there are no statistics yet and the gate stays open (assess always).
+routine episodes: dataset frames during `lerobot-train`, successful attempts without intervention online). A
+long-term safe memory joins it: a uniform sample of every skill's routine frames, so that a learner grown task by
+task does not find its earlier tasks novel just because the last N interactions all come from the latest one.
+Whenever the encoder, the window or the memory has changed, these safe references are re-encoded: the mean residual
+of each modality there is the scale sigma_c^2 is measured in (see `context_encoder`), and mean/std of the resulting
+sigma^2 give tau. So tau always describes the safe experience as the encoder sees it now; the scales and
+mean/std/tau are persistent buffers. With fewer than `min_count` interactions there are no statistics yet and the
+gate stays open (assess always).
 
-A failure makes its context uncertain (paper Fig. 2, phase 3): with failure contexts given, the gate also opens
-where the code mu_c is similar to one of them (centred cosine similarity at least `kvm.similarity`, the test that
-matches a context to a failure hypothesis) and more similar to it than to any safe reference. A failure's context
-often reconstructs as well as the safe experience (a new instruction over familiar forces), and a closed gate
-would keep both the energy model's suppression and a correction skill out of the very contexts the failure
-taught about; the comparison with the safe references keeps it closed where a failed attempt sensed exactly what
-the safe experience holds.
+`similar` is the test that matches a context to a failure hypothesis (App. D): centred cosine similarity of the
+codes mu_c at least `kvm.similarity`.
 """
-
-from collections.abc import Callable
 
 import torch
 import torch.nn.functional as F  # noqa: N812
@@ -45,7 +38,6 @@ class SmartGate(nn.Module):
         k: float,
         min_count: int,
         n_parts: int = 2,
-        failures: Callable[[], Tensor] | None = None,
         similarity: float = 0.9,
     ) -> None:
         super().__init__()
@@ -57,11 +49,8 @@ class SmartGate(nn.Module):
         self.stale = True  # runtime only: stats must be recomputed before the next decision
         self._probe: GateProbe | None = None  # runtime cache: the encoder folded for the per-step test
         self.tau_value = float("-inf")  # runtime cache of stats[0] as a Python float
-        self.failures = failures  # gives the contexts of failures met online, where the gate opens too
         self.similarity = similarity
         self.center: Tensor | None = None  # runtime cache: mean code of the safe references
-        self.fail_codes: Tensor | None = None  # runtime cache: the failures' centred unit codes
-        self.safe_codes: Tensor | None = None  # runtime cache: the safe references' centred unit codes
         self.register_load_state_dict_post_hook(SmartGate._after_load)
 
     @staticmethod
@@ -89,17 +78,13 @@ class SmartGate(nn.Module):
     def refresh(self, encoder: ContextEncoder, memory: SampleBuffer | None = None) -> Tensor:
         """Recompute the residual scales and (tau, mean, std) from the safe references with the current encoder."""
         reference = self.reference(memory)
-        self.center, self.fail_codes, self.safe_codes = None, None, None
+        self.center = None
         if len(reference) < max(self.min_count, 1):
             self.scale.fill_(1.0)
             stats = torch.tensor([float("-inf"), 0.0, 0.0])
         else:
             mu, parts = encoder(reference)
             self.center = mu.mean(0)
-            failures = self.failures() if self.failures is not None else mu[:0]
-            if len(failures):
-                self.fail_codes = F.normalize(encoder(failures)[0] - self.center, dim=-1)
-                self.safe_codes = F.normalize(mu - self.center, dim=-1)
             self.scale.copy_(parts.mean(0).clamp_min(1e-6))
             tau, mean, std = adaptive_threshold(encoder.sigma2(parts, self.scale), self.k)
             stats = torch.stack([tau, mean, std])
@@ -123,20 +108,6 @@ class SmartGate(nn.Module):
         center = self.center if self.center is not None else ref.mean(0)
         sims = F.normalize(mu - center, dim=-1) @ F.normalize(ref - center, dim=-1).T
         return sims.amax(-1) >= self.similarity
-
-    @property
-    def watches_failures(self) -> bool:
-        """The gate opens near failures met online too (`near_failure` needs the codes)."""
-        return self.fail_codes is not None and self.center is not None
-
-    def near_failure(self, mu: Tensor) -> Tensor | None:
-        """[B] bool: codes similar to a failure's context, and more than to any safe reference (None when there is
-        no failure; call after ensure_fresh)."""
-        if not self.watches_failures:
-            return None
-        unit = F.normalize(mu - self.center, dim=-1)
-        to_failure = (unit @ self.fail_codes.T).amax(-1)
-        return (to_failure >= self.similarity) & (to_failure > (unit @ self.safe_codes.T).amax(-1))
 
     def ensure_fresh(self, encoder: ContextEncoder, memory: SampleBuffer | None = None) -> None:
         if self.stale:

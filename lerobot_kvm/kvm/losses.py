@@ -4,6 +4,13 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from torch import Tensor
 
+CONTRAST_MARGIN = 0.5  # m of eq. 5 (the features h lie on the unit sphere)
+ENERGY_MARGIN = 10.0  # m_e of eq. 6 (App. E)
+ENERGY_FLOOR = 10.0  # eq. 6's safe term stops at E = -ENERGY_FLOOR (see `energy_loss`)
+ENERGY_WEIGHT = 1.0  # lambda of eq. 13
+RECON_WEIGHT = 1.0  # E_c's reconstruction on routine safe contexts (§3.1: what makes sigma_c^2)
+BCE_WEIGHT = 1.0  # Table 4's "w/o energy model" classifier, trained alongside on detached features
+
 
 def contrastive_loss(anchor: Tensor, safe: Tensor, fail: Tensor, margin: float) -> Tensor:
     """Eq. 5: mean(max(0, D(anchor, safe) - D(anchor, fail) + m)) with Euclidean D; inputs [N, F]."""

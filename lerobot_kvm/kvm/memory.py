@@ -20,9 +20,7 @@ from torch import Tensor, nn
 # Flags of a stored sample.
 ROUTINE = 1  # a safe sample from routine experience (no intervention): trains sigma_c^2, feeds the gate window
 PERMANENT = 2  # a confirmed h_fail negative: never evicted
-PROVISIONAL = 4  # a negative from an unconfirmed hypothesis
 DEMO = 8  # from a corrective demonstration
-SYNTHETIC = 16
 
 MODES = ("ring", "reservoir", "protected")
 
@@ -167,8 +165,9 @@ class EpisodeLabels(nn.Module):
         return bool((self.table[:, 0] >= 0).any())
 
     @torch.no_grad()
-    def load(self, episodes: Sequence[dict], use_shifted: bool = False) -> int:
-        """Fill from `load_labels(root)["episodes"]`; returns the number of episodes stored."""
+    def load(self, episodes: Sequence[dict]) -> int:
+        """Fill from `load_labels(root)["episodes"]`; returns the number of episodes stored. Frames of a
+        benchmark-shifted variant are never learned offline (the leakage rule): they are stored as not usable."""
         vocab = sorted({str(e["skill"]) for e in episodes})
         raw = json.dumps(vocab).encode("utf-8")
         if len(raw) > VOCAB_BYTES:
@@ -182,7 +181,7 @@ class EpisodeLabels(nn.Module):
             outcome = str(e.get("outcome", "success"))
             if outcome not in OUTCOME_IDS:
                 raise ValueError(f"episode {index}: unknown outcome {outcome!r}; expected one of {list(OUTCOME_IDS)}")
-            usable = use_shifted or str(e.get("variant", "prior")) != "shifted"
+            usable = str(e.get("variant", "prior")) != "shifted"
             table[index] = torch.tensor([vocab.index(str(e["skill"])), OUTCOME_IDS[outcome], int(usable)])
             stored += 1
         self.table.copy_(table)

@@ -1,7 +1,7 @@
 """Knowledge-base metabolism (paper §3.2, App. A.1, eqs. 7-8): FCRNC and SRNC per skill, pruning.
 
 An interaction is one attempt. For the skill the CL core proposed in that attempt (the one it relied on: the
-largest share of the CODA prompt before any KVM re-weighting, see `online.apply_feedback`), the attempt's
+largest share of the CODA prompt before any KVM re-weighting, see `policy.feedback.apply_feedback`), the attempt's
 outcome and whether the KVM suppressed the skill (min_t v_t < tau_v) are counted in the slot of the attempt's
 task; a failure counts as the skill's contribution only where the KVM had not suppressed it (a suppressed
 skill's interaction is SRNC's to count). Skills that merely touched the prompt are not charged: a suite whose
@@ -21,6 +21,10 @@ import hashlib
 
 import torch
 from torch import Tensor, nn
+
+METABOLISM_WINDOW = 5  # App. E: FCRNC and SRNC over the 5 most recent new tasks
+PRUNE_THRESHOLD = 0.8  # App. E: pruned when FCRNC or SRNC remains above 0.8
+PRUNE_MIN_INTERACTIONS = 5  # eqs. 7-8 need proposals: fewer in the window judge nothing
 
 
 def task_key(task: str) -> int:

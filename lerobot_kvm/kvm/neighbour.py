@@ -1,5 +1,5 @@
-"""A skill's energy from the nearest neighbours of its failures (`kvm.risk_model="neighbour"`), on E_c's codes or
-on the raw contexts (`kvm.neighbour_space`).
+"""A skill's energy from the nearest neighbours of its failures (`kvm.risk_model="neighbour"`), on the raw
+contexts c_raw.
 
 One failure gives the energy model a few dozen hazardous contexts, and what it learns from them ranks the next
 episode's shifted contexts poorly (kvm-check, categories A and B), while the same memories rank them well by
@@ -20,9 +20,11 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .experience import View
-
 NEIGHBOURS = 3
+# The energy crosses eq. 2's midpoint at this quantile of the held-out safe scores and rises by the slope per spread
+# (kvm-check with slope 10 against 5: docs/measurements.md).
+NEIGHBOUR_QUANTILE = 0.95
+NEIGHBOUR_SLOPE = 10.0
 CALIBRATION_SAMPLES = 512  # held-out safe samples the threshold is taken over
 
 
@@ -113,25 +115,6 @@ class NeighbourEnergy:
             self._affine = (gamma, l0, self.weight / gamma, self.bias / gamma - l0)
         _, _, weight, bias = self._affine
         return torch.addmm(bias, self.references.mean_distance(*self.span.coords(x)), weight)
-
-
-class NeighbourViews:
-    """The energies of the same skills searched in several views of the contexts (`views`: each a function of the
-    contexts and the `NeighbourEnergy` built on what it reads): a context is as risky as the view it looks riskiest
-    in. The context window carries a shift that builds up over steps, its current frame one that shows in a single
-    step undiluted by the frames before it."""
-
-    def __init__(self, views: list[tuple[View, NeighbourEnergy]]) -> None:
-        self.views = views
-        self.skills = views[0][1].skills
-
-    def energy(self, x: Tensor, gamma: float, l0: float) -> Tensor:
-        """[B, S] the largest energy over the views."""
-        view, first = self.views[0]
-        energy = first.energy(view(x), gamma, l0)
-        for view, other in self.views[1:]:
-            energy = torch.maximum(energy, other.energy(view(x), gamma, l0))
-        return energy
 
 
 @torch.no_grad()

@@ -5,31 +5,48 @@
 score every skill in the pool (candidates and the rest) with the energy model when the gate is open, turn the
 energies into validities (eq. 2) and the validities into skill weights for the fused prompt (eq. 3).
 `offline_step()` is the learning that runs inside `forward()` during `lerobot-train`; `train_online()` is the
-update of the feedback API (see `kvm.online`).
+update of the feedback API (driven by `policy.feedback`).
 """
 
 import sys
-from collections import deque
 from collections.abc import Callable, Iterable
 
 import torch
 from torch import Tensor, nn
 
-from .attribution import HypothesisTable
+from .attribution import PERSISTENCE, HypothesisTable
 from .configuration import KvmConfig
 from .context_encoder import ContextEncoder
-from .energy import EnergyModel, JointFeature, RiskClassifier, SkillScorer, validity
-from .experience import ExperienceViews, SafeExperience, View
+from .energy import ENERGY_MAX, GAMMA, L0, EnergyModel, JointFeature, RiskClassifier, SkillScorer, validity
+from .experience import SafeExperience
 from .fusion import correction_validity, fuse_weights
 from .gate import SmartGate
-from .losses import bce_loss, contrastive_loss, energy_loss, total_loss
-from .memory import DEMO, PERMANENT, ROUTINE, SYNTHETIC, EpisodeLabels, SampleBuffer
-from .metabolism import SkillMetabolism
-from .neighbour import NeighbourEnergy, NeighbourViews, calibrate
+from .losses import (
+    BCE_WEIGHT,
+    CONTRAST_MARGIN,
+    ENERGY_FLOOR,
+    ENERGY_MARGIN,
+    ENERGY_WEIGHT,
+    RECON_WEIGHT,
+    bce_loss,
+    contrastive_loss,
+    energy_loss,
+    total_loss,
+)
+from .memory import DEMO, PERMANENT, ROUTINE, EpisodeLabels, SampleBuffer
+from .metabolism import METABOLISM_WINDOW, PRUNE_MIN_INTERACTIONS, PRUNE_THRESHOLD, SkillMetabolism
+from .neighbour import NEIGHBOUR_QUANTILE, NEIGHBOUR_SLOPE, NeighbourEnergy, calibrate
 from .telemetry import KvmStepTelemetry
 
 GATE_OVERRIDES = (None, "open", "closed")
 _FINITE_MAX = sys.float_info.max
+QUERY_WEIGHT = 1.0  # §3.1 multimodal context: weight of the query's reconstruction residual in sigma_c^2
+SYNTHETIC_NOISE = 3.0  # §3.3 h_fail: std of the synthetic perturbations, in normalized context units
+# Safe samples the energy model still judges invalid (v below HARD_SAFE_VALIDITY) are kept in a FIFO of this size
+# and replayed at every step (`kvm.hard_safe_replay`; docs/measurements.md).
+HARD_SAFE_CAPACITY = 512
+HARD_SAFE_VALIDITY = 0.5
+FEEDBACK_LR = 1e-3  # App. D: the feedback's Adam step size
 
 
 class KnowledgeValidityModule(nn.Module):
@@ -37,18 +54,13 @@ class KnowledgeValidityModule(nn.Module):
         super().__init__()
         self.config = config
         self.max_skills = max_skills
+        # c_raw = [sensed context, frozen query embedding q(x)] (§3.1: the multimodal context)
         self.encoder = ContextEncoder(
-            sensed_dim,
-            query_dim,
-            config.encoder_hidden,
-            config.latent_dim,
-            config.use_query,
-            config.query_weight,
-            config.context_frames,
+            sensed_dim, query_dim, config.encoder_hidden, config.latent_dim, True, QUERY_WEIGHT
         )
         raw_dim = self.encoder.raw_dim
         self.joint = JointFeature(config.latent_dim, max_skills, config.skill_embed_dim, config.feature_dim)
-        self.energy = EnergyModel(config.feature_dim, config.energy_hidden, config.energy_max)
+        self.energy = EnergyModel(config.feature_dim, config.energy_hidden, ENERGY_MAX)
         self.classifier = RiskClassifier(config.feature_dim, config.energy_hidden)
         n_parts = 2 if self.encoder.query_dim else 1
         self.safe_offline = SampleBuffer(config.safe_offline_capacity, raw_dim, "reservoir")
@@ -56,25 +68,16 @@ class KnowledgeValidityModule(nn.Module):
         self.fail_offline = SampleBuffer(config.fail_offline_capacity, raw_dim, "reservoir")
         self.fail_online = SampleBuffer(config.fail_online_capacity, raw_dim, "protected")
         self.gate = SmartGate(
-            config.gate_window,
-            raw_dim,
-            config.gate_k,
-            config.gate_min_count,
-            n_parts,
-            failures=self.failure_contexts if config.failure_gate else None,
-            similarity=config.similarity,
+            config.gate_window, raw_dim, config.gate_k, config.gate_min_count, n_parts, similarity=config.similarity
         )
-        self.safe_hard = SampleBuffer(config.hard_safe_capacity, raw_dim, "ring")
-        self.hypotheses = HypothesisTable(config.hypothesis_capacity, raw_dim, config.persistence, config.tau_high)
-        self.metabolism = SkillMetabolism(
-            max_skills, config.metabolism_window, config.prune_threshold, config.prune_min_interactions
-        )
+        self.safe_hard = SampleBuffer(HARD_SAFE_CAPACITY, raw_dim, "ring")
+        self.hypotheses = HypothesisTable(config.hypothesis_capacity, raw_dim, PERSISTENCE, config.tau_high)
+        self.metabolism = SkillMetabolism(max_skills, METABOLISM_WINDOW, PRUNE_THRESHOLD, PRUNE_MIN_INTERACTIONS)
         self.labels = EpisodeLabels(config.label_capacity)
-        # Runtime only (never saved): a forced gate state for overhead measurement and the online sigma window.
+        # Runtime only (never saved): a forced gate state for overhead measurement.
         self.gate_override: str | None = None
-        self._sigma_history: deque[Tensor] = deque(maxlen=config.context_window)
         # cache of `neighbour_energies`
-        self._neighbours: tuple[tuple, NeighbourEnergy | NeighbourViews | None] | None = None
+        self._neighbours: tuple[tuple, NeighbourEnergy | None] | None = None
         self._encoder_params = tuple(self.encoder.parameters())  # loads and moves keep the Parameter objects
         joint = tuple(self.joint.parameters())  # what `scorer` snapshots: the joint feature and one network
         self._scored_params = {
@@ -89,13 +92,11 @@ class KnowledgeValidityModule(nn.Module):
             self.gate.stale = True
         return super().train(mode)
 
-    def reset_runtime(self) -> None:
-        self._sigma_history.clear()
-
     @property
-    def gate_memory(self) -> SampleBuffer | None:
-        """The long-term safe memory the gate's tau also covers (None: the last N interactions alone)."""
-        return self.safe_offline if self.config.gate_safe_memory else None
+    def gate_memory(self) -> SampleBuffer:
+        """The long-term safe memory the gate's tau also covers: in a learner grown task by task the last N
+        interactions are the latest task's, and every earlier task would look novel."""
+        return self.safe_offline
 
     def set_gate_override(self, mode: str | None) -> None:
         if mode not in GATE_OVERRIDES:
@@ -137,26 +138,25 @@ class KnowledgeValidityModule(nn.Module):
         """Energy of features h [..., F] under the configured risk model (E_theta, or the BCE classifier's
         energy-equivalent); the "neighbour" model starts from E_theta (`skill_energies`)."""
         if (risk_model or self.config.risk_model) == "bce":
-            return RiskClassifier.energy_equivalent(self.classifier(h), self.config.gamma, self.config.l0)
+            return RiskClassifier.energy_equivalent(self.classifier(h), GAMMA, L0)
         return self.energy(h)
 
     def skill_energies(self, mu: Tensor, c_raw: Tensor | None, n_skills: int, risk_model: str | None = None) -> Tensor:
-        """E [B, S] of every context (codes mu [B, L], raw contexts c_raw [B, D], which only the neighbours in
-        `kvm.neighbour_space="context"` read) with every skill begun in the pool. With the "neighbour" risk model a
+        """E [B, S] of every context (codes mu [B, L], raw contexts c_raw [B, D], which only the neighbours
+        read) with every skill begun in the pool. With the "neighbour" risk model a
         skill with failures in memory takes its `NeighbourEnergy` instead of E_theta's."""
         cfg = self.config
         model = risk_model or cfg.risk_model
         if torch.is_grad_enabled():  # learning: through the modules
             energy = self.risk_energy(self.joint.all_skills(mu, torch.arange(n_skills, device=mu.device)), model)
         elif model == "bce":
-            energy = RiskClassifier.energy_equivalent(self.scorer(n_skills, True)(mu), cfg.gamma, cfg.l0)
+            energy = RiskClassifier.energy_equivalent(self.scorer(n_skills, True)(mu), GAMMA, L0)
         else:
             energy = self.scorer(n_skills, False)(mu)
         if model == "neighbour":
             neighbours = self.neighbour_energies(n_skills)
             if neighbours is not None:
-                where = mu if cfg.neighbour_space == "code" else c_raw.to(mu)
-                energy[:, neighbours.skills] = neighbours.energy(where, cfg.gamma, cfg.l0)
+                energy[:, neighbours.skills] = neighbours.energy(c_raw.to(mu), GAMMA, L0)
         return energy
 
     def scorer(self, n_skills: int, classifier: bool) -> SkillScorer:
@@ -172,64 +172,39 @@ class KnowledgeValidityModule(nn.Module):
                 cached = self._scorers[classifier] = (key, SkillScorer(self.joint, net, n_skills, bound))
         return cached[1]
 
-    def neighbour_energies(self, n_skills: int) -> NeighbourEnergy | NeighbourViews | None:
-        """The nearest-neighbour energies of the skills with failures in memory, in `kvm.neighbour_space` (None: no
-        such skill); rebuilt when a memory (or, on codes, E_c) has changed since (in-place updates and loads bump
-        the tensors' version counters; a move changes the device or dtype). The test runs at every gate-open step,
-        so it reads E_c's parameters from a tuple kept since construction."""
-        cfg = self.config
-        on_codes = cfg.neighbour_space == "code"
+    def neighbour_energies(self, n_skills: int) -> NeighbourEnergy | None:
+        """The nearest-neighbour energies, on the raw contexts, of the skills with failures in memory (None: no
+        such skill); rebuilt when a memory has changed since (in-place updates and loads bump the tensors' version
+        counters; a move changes the device or dtype)."""
         stamps = (b.stamp for b in (self.safe_offline, self.safe_online, self.fail_online, self.fail_offline))
-        watched = (*self._encoder_params, *stamps) if on_codes else stamps  # buffers: a move replaces them
-        key = (n_skills, cfg.neighbour_space, *_cache_key(self._encoder_params[0], watched))
+        key = (n_skills, *_cache_key(self._encoder_params[0], stamps))  # buffers: a move replaces them
         if self._neighbours is None or self._neighbours[0] != key:
-            self._neighbours = (key, self._build_neighbours(n_skills, on_codes))
+            self._neighbours = (key, self._build_neighbours(n_skills))
         return self._neighbours[1]
 
-    def _codes(self, c_raw: Tensor) -> Tensor:
-        """The view of E_c's codes mu_c."""
-        return self.encoder(c_raw)[0]
-
-    def context_views(self) -> list[View]:
-        """The views of c_raw that the labelling of failures and the neighbour search read: the whole context and,
-        where it holds earlier frames (`kvm.context_frames`), its current frame."""
-        return [_whole] if self.config.context_frames == 1 else [_whole, self.encoder.frame_view]
-
     @torch.no_grad()
-    def _build_neighbours(self, n_skills: int, on_codes: bool) -> NeighbourEnergy | NeighbourViews | None:
-        cfg = self.config
-        views = [self._codes] if on_codes else self.context_views()
-        skills, safe_rows, fail_rows, tag_rows = [], [], [], []
+    def _build_neighbours(self, n_skills: int) -> NeighbourEnergy | None:
+        kept, safe_seen, fail_seen, calibrations = [], [], [], []
         for skill in range(n_skills):
             fail, _ = _of_skill((self.fail_online, self.fail_offline), skill)
             if not len(fail):
                 continue
             safe, tags = self.safe_samples(skill)
-            skills.append(skill)
-            safe_rows.append(safe)
-            fail_rows.append(fail)
-            tag_rows.append(tags)
-        energies = []
-        for view in views:
-            kept, safe_seen, fail_seen, calibrations = [], [], [], []
-            for skill, safe, fail, tags in zip(skills, safe_rows, fail_rows, tag_rows, strict=True):
-                safe, fail = view(safe), view(fail)
-                found = calibrate(safe, tags, fail, cfg.neighbour_quantile)
-                if found is not None:
-                    kept.append(skill)
-                    safe_seen.append(safe)
-                    fail_seen.append(fail)
-                    calibrations.append(found)
-            if not kept:
-                return None
-            energies.append((view, NeighbourEnergy(kept, safe_seen, fail_seen, calibrations, cfg.neighbour_slope)))
-        return energies[0][1] if len(energies) == 1 else NeighbourViews(energies)
+            found = calibrate(safe, tags, fail, NEIGHBOUR_QUANTILE)
+            if found is not None:
+                kept.append(skill)
+                safe_seen.append(safe)
+                fail_seen.append(fail)
+                calibrations.append(found)
+        if not kept:
+            return None
+        return NeighbourEnergy(kept, safe_seen, fail_seen, calibrations, NEIGHBOUR_SLOPE)
 
     def validity_of(self, c_raw: Tensor, n_skills: int, risk_model: str | None = None) -> Tensor:
         """v [B, S] with the gate bypassed (the energy model's judgement everywhere); invalid rows -> 0."""
         mu, _, valid = self.encode(c_raw)
         energy = self.skill_energies(mu, c_raw, n_skills, risk_model)
-        v = validity(energy, self.config.gamma, self.config.l0)
+        v = validity(energy, GAMMA, L0)
         ok = valid.unsqueeze(-1) & torch.isfinite(energy)
         return torch.where(ok, v, torch.zeros_like(v))
 
@@ -248,9 +223,9 @@ class KnowledgeValidityModule(nn.Module):
         weight, not a validity)."""
         mu, sigma2, valid = self.encode(c_raw)
         energy = self.skill_energies(mu, c_raw, n_skills)
-        v = validity(energy, self.config.gamma, self.config.l0)
+        v = validity(energy, GAMMA, L0)
         if use_gate and self.config.smart_gate:
-            v = torch.where(self.gate_open(mu, sigma2).unsqueeze(-1), v, torch.ones_like(v))
+            v = torch.where(self.gate_open(sigma2).unsqueeze(-1), v, torch.ones_like(v))
         ok = valid.unsqueeze(-1) & torch.isfinite(energy) & active.unsqueeze(0)
         v = torch.where(ok, v, torch.zeros_like(v))
         if corrections is None or alphas is None:
@@ -260,13 +235,10 @@ class KnowledgeValidityModule(nn.Module):
     def threshold(self) -> Tensor:
         return self.gate.threshold(self.encoder, self.gate_memory)
 
-    def gate_open(self, mu: Tensor | None, sigma2: Tensor) -> Tensor:
-        """[B] bool: the smart gate's decision: sigma_c^2 above tau (a non-finite one included), or a context
-        similar to a failure met online (call after the gate is fresh; mu may be None unless the gate
-        `watches_failures`)."""
-        gate = ~(sigma2 <= self.gate.tau_value)
-        near = None if mu is None else self.gate.near_failure(mu)
-        return gate if near is None else gate | near
+    def gate_open(self, sigma2: Tensor) -> Tensor:
+        """[B] bool: the smart gate's decision (eq. 1): sigma_c^2 above tau, a non-finite one included (call after
+        the gate is fresh)."""
+        return ~(sigma2 <= self.gate.tau_value)
 
     def assess(
         self,
@@ -289,14 +261,6 @@ class KnowledgeValidityModule(nn.Module):
         self.gate.ensure_fresh(self.encoder, self.gate_memory)
         probe = self.gate.probe(self.encoder)
         sigma2, hidden = probe(sensed, query)
-        mu = probe.code(hidden) if self.gate.watches_failures else None
-        sigma2_gate = None
-        if cfg.context_window > 1:
-            if self._sigma_history and self._sigma_history[-1].shape != sigma2.shape:
-                self._sigma_history.clear()
-            self._sigma_history.append(sigma2)
-            sigma2_gate = torch.stack(list(self._sigma_history)).mean(0)
-        compared = sigma2 if sigma2_gate is None else sigma2_gate
         tau = self.gate.tau_value
         # A non-finite sigma^2 fails `<=` and `isfinite`: non-finite contexts and codes open the gate, and are
         # flagged invalid once it is open (rows are independent, so they spoil no other row).
@@ -306,19 +270,17 @@ class KnowledgeValidityModule(nn.Module):
             gate = torch.ones_like(sigma2, dtype=torch.bool)
         elif self.gate_override == "closed":
             gate = None if _at_most(sigma2, _FINITE_MAX) else ~torch.isfinite(sigma2)
-        elif mu is None and _at_most(compared, tau):
+        elif _at_most(sigma2, tau):
             gate = None
         else:
-            gate = self.gate_open(mu, compared)
+            gate = self.gate_open(sigma2)
         if all_active is None:
             all_active = bool(active.all())
         common = dict(
             sigma2=sigma2,
-            sigma2_gate=sigma2_gate,
             tau=tau,
             gate=gate,
             active=active,
-            tau_v=cfg.tau_v,
             candidate_min_alpha=cfg.candidate_min_alpha,
         )
         anywhere, everywhere = _spread(gate)
@@ -336,11 +298,10 @@ class KnowledgeValidityModule(nn.Module):
             v = torch.full_like(energy, cfg.force_validity)
             invalid = torch.zeros_like(v, dtype=torch.bool) if valid is None else ~valid.expand_as(v)
         else:
-            mu = probe.code(hidden) if mu is None else mu
-            on_contexts = cfg.risk_model == "neighbour" and cfg.neighbour_space == "context"
-            c_raw = self.raw_context(sensed, query) if on_contexts else None
+            mu = probe.code(hidden)
+            c_raw = self.raw_context(sensed, query) if cfg.risk_model == "neighbour" else None
             energy = self.skill_energies(mu, c_raw, active.shape[0])
-            v = validity(energy, cfg.gamma, cfg.l0)
+            v = validity(energy, GAMMA, L0)
             invalid = ~torch.isfinite(energy) if valid is None else ~(valid & torch.isfinite(energy))
             if not everywhere:  # rows with the gate closed (their sigma^2 is finite): not assessed, E NaN, v = 1
                 assessed = gate.unsqueeze(-1)
@@ -386,7 +347,7 @@ class KnowledgeValidityModule(nn.Module):
             return c_raw[:0], skills[:0]
         noisy = c_raw.clone()
         sensed = self.encoder.sensed_dim
-        noisy[:, :sensed] += self.config.synthetic_noise * torch.randn_like(noisy[:, :sensed])
+        noisy[:, :sensed] += SYNTHETIC_NOISE * torch.randn_like(noisy[:, :sensed])
         return noisy, skills
 
     def _replay(self, buffer: SampleBuffer, n: int, where: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
@@ -407,7 +368,6 @@ class KnowledgeValidityModule(nn.Module):
         `code_from_recon_only`: E_c learns from the reconstruction alone; the contrastive and energy terms train
         the joint feature and the energy model. Returns the loss, its metrics and the safe samples' energies
         (detached)."""
-        cfg = self.config
         mu_s, parts_s, _ = self._encode_parts(safe_c)
         if code_from_recon_only:
             mu_s = mu_s.detach()
@@ -422,14 +382,14 @@ class KnowledgeValidityModule(nn.Module):
         else:
             h_f = h_s[:0]
             e_f = e_s[:0]
-        e_loss = energy_loss(e_s, e_f, cfg.energy_margin, cfg.energy_floor)
+        e_loss = energy_loss(e_s, e_f, ENERGY_MARGIN, ENERGY_FLOOR)
         contrast = zero
         if len(h_s) and len(h_f):
             positive = h_s[self._same_skill_partner(safe_s)]
             negative = h_f[torch.randint(len(h_f), (len(h_s),), device=h_f.device)]
-            contrast = contrastive_loss(h_s, positive, negative, cfg.contrast_margin)
+            contrast = contrastive_loss(h_s, positive, negative, CONTRAST_MARGIN)
         bce = bce_loss(self.classifier(h_s.detach()), self.classifier(h_f.detach()))
-        loss = cfg.recon_weight * recon + total_loss(contrast, e_loss, cfg.energy_weight) + cfg.bce_weight * bce
+        loss = RECON_WEIGHT * recon + total_loss(contrast, e_loss, ENERGY_WEIGHT) + BCE_WEIGHT * bce
         metrics = {
             "loss": loss,
             "recon": recon,
@@ -438,8 +398,8 @@ class KnowledgeValidityModule(nn.Module):
             "bce": bce,
             "energy_safe": e_s.mean() if len(e_s) else zero,
             "energy_fail": e_f.mean() if len(e_f) else zero,
-            "v_safe": validity(e_s, cfg.gamma, cfg.l0).mean() if len(e_s) else zero,
-            "v_fail": validity(e_f, cfg.gamma, cfg.l0).mean() if len(e_f) else zero,
+            "v_safe": validity(e_s, GAMMA, L0).mean() if len(e_s) else zero,
+            "v_fail": validity(e_f, GAMMA, L0).mean() if len(e_f) else zero,
             "n_fail": torch.tensor(float(len(e_f))),
         }
         return loss, metrics, e_s.detach()
@@ -460,15 +420,9 @@ class KnowledgeValidityModule(nn.Module):
         to the skill that was asked for. A success or a demonstration met online shows that its skill works there,
         not that the others fail: a corrective demonstration senses what the culprit's own safe episodes sense until
         the shift shows, and pairing it with the culprit would suppress the culprit in its prior contexts."""
-        parts_c, parts_s = [], []
-        if self.config.cross_skill_negatives:
-            c, s = self._cross_skill(safe_c[recorded], safe_s[recorded], active)
-            parts_c.append(c)
-            parts_s.append(s)
-        c, s = self._synthetic(safe_c, safe_s)
-        parts_c.append(c)
-        parts_s.append(s)
-        return torch.cat(parts_c), torch.cat(parts_s)
+        cross_c, cross_s = self._cross_skill(safe_c[recorded], safe_s[recorded], active)
+        synthetic_c, synthetic_s = self._synthetic(safe_c, safe_s)
+        return torch.cat([cross_c, synthetic_c]), torch.cat([cross_s, synthetic_s])
 
     def offline_step(
         self,
@@ -522,9 +476,8 @@ class KnowledgeValidityModule(nn.Module):
 
     @torch.no_grad()
     def keep_hard_safe(self, c_raw: Tensor, skills: Tensor, energy: Tensor, tags: Tensor | int = -1) -> int:
-        """Store the safe samples the energy model still judges invalid (v < hard_safe_validity) for replay."""
-        cfg = self.config
-        hard = validity(energy, cfg.gamma, cfg.l0) < cfg.hard_safe_validity
+        """Store the safe samples the energy model still judges invalid (v < HARD_SAFE_VALIDITY) for replay."""
+        hard = validity(energy, GAMMA, L0) < HARD_SAFE_VALIDITY
         if isinstance(tags, Tensor):
             tags = tags[hard]
         return self.safe_hard.add(c_raw[hard], skills[hard], ROUTINE, tags)
@@ -543,17 +496,17 @@ class KnowledgeValidityModule(nn.Module):
         Each step mixes the fresh samples of this feedback (half of each side) with replay from the memories,
         so what was safe stays safe; cross-skill and synthetic negatives are added as offline. The recorded safe
         frames a step replays and judges invalid join the hard safe memory, replayed at every later step: a
-        failure's few negatives would otherwise suppress the culprit wherever its safe experience resembles them. With
-        `kvm.online_encoder="reconstruction"` (the default) E_c learns only its reconstruction here, so a feedback's
-        few contexts (the failed ones are safe for the demonstrated skill and hazardous for its culprit) cannot move
-        the codes, nor the residual the smart gate reads. With "joint" it learns from the contrastive and energy
-        terms too, which moves the codes of the failure contexts away from the culprit's safe ones.
+        failure's few negatives would otherwise suppress the culprit wherever its safe experience resembles them. E_c
+        learns only its reconstruction here, so a feedback's few contexts (the failed ones are safe for the
+        demonstrated skill and hazardous for its culprit) cannot move the codes, nor the residual the smart gate
+        reads: learning the contrastive and energy terms too opened the gate on every routine step of a scenario
+        after one of its failures (docs/measurements.md).
         """
         cfg = self.config
         batch = batch or cfg.feedback_batch
         half = max(batch // 2, 1)
         params = self.learnable_parameters()
-        optimizer = torch.optim.Adam(params, lr=lr or cfg.feedback_lr)
+        optimizer = torch.optim.Adam(params, lr=lr or FEEDBACK_LR)
         metrics: dict[str, Tensor] = {}
         safe_new_c, safe_new_s = new_safe
         fail_new_c, fail_new_s = new_fail
@@ -606,7 +559,7 @@ class KnowledgeValidityModule(nn.Module):
                     routine,
                     torch.cat(fparts_c),
                     torch.cat(fparts_s),
-                    code_from_recon_only=cfg.online_encoder == "reconstruction",
+                    code_from_recon_only=True,
                 )
                 self.keep_hard_safe(safe_c[offline], safe_s[offline], e_safe[offline])
                 optimizer.zero_grad()
@@ -625,23 +578,16 @@ class KnowledgeValidityModule(nn.Module):
         return _of_skill((self.safe_offline, self.safe_online), skill)
 
     @torch.no_grad()
-    def safe_experience(self, skill: int) -> ExperienceViews:
-        """`skill`'s safe memory with the spread of its recorded episodes, in each of `context_views`."""
+    def safe_experience(self, skill: int) -> SafeExperience:
+        """`skill`'s safe memory with the spread of its recorded episodes."""
         samples, tags = self.safe_samples(skill)
         tagged = tags >= 0
         episodes = tags[tagged]
-        measurable = len(torch.unique(episodes)) >= 2
-        same_episode = episodes.unsqueeze(0) == episodes.unsqueeze(1)
-        views = []
-        for view in self.context_views():
-            seen = view(samples)
-            if not measurable:
-                views.append((view, SafeExperience(seen, seen.new_zeros(0))))
-                continue
-            cross = torch.cdist(seen[tagged], seen[tagged])
-            cross[same_episode] = float("inf")
-            views.append((view, SafeExperience(seen, cross.min(1).values)))
-        return ExperienceViews(views)
+        if len(torch.unique(episodes)) < 2:
+            return SafeExperience(samples, samples.new_zeros(0))
+        cross = torch.cdist(samples[tagged], samples[tagged])
+        cross[episodes.unsqueeze(0) == episodes.unsqueeze(1)] = float("inf")
+        return SafeExperience(samples, cross.min(1).values)
 
     def add_safe(self, c_raw: Tensor, skills: Tensor, routine: bool, demo: bool = False) -> None:
         flags = (ROUTINE if routine else 0) | (DEMO if demo else 0)
@@ -649,14 +595,8 @@ class KnowledgeValidityModule(nn.Module):
         if routine:
             self.gate.push(c_raw)
 
-    def failure_contexts(self) -> Tensor:
-        """The contexts of every failure met online that the memory holds."""
-        return self.fail_online.data[self.fail_online.filled()]
-
     def add_fail(self, c_raw: Tensor, skills: Tensor, hypothesis_id: int, permanent: bool = False) -> None:
         self.fail_online.add(c_raw, skills, PERMANENT if permanent else 0, hypothesis_id)
-        if self.gate.failures is not None:
-            self.gate.stale = True  # the gate opens near failures met online: their codes must be re-encoded
 
     @torch.no_grad()
     def make_permanent(self, hypothesis_id: int) -> int:
@@ -667,10 +607,15 @@ class KnowledgeValidityModule(nn.Module):
     def n_permanent(self) -> int:
         return int(((self.fail_online.flags & PERMANENT) > 0).sum())
 
-
-def _whole(c_raw: Tensor) -> Tensor:
-    """The view of the whole context."""
-    return c_raw
+    @torch.no_grad()
+    def similar_to_hypothesis(self, mu: Tensor, hypothesis_id: int) -> Tensor:
+        """[B] bool: context codes similar to a hypothesis's contexts (its prototype and negatives): where an
+        intervention or a failure counts as evidence for it (App. D)."""
+        table = self.hypotheses
+        rows = [table.prototype[table.row(hypothesis_id)].unsqueeze(0)]
+        tagged = (self.fail_online.tag == hypothesis_id) & (self.fail_online.stamp >= 0)
+        rows.append(self.fail_online.data[tagged])
+        return self.gate.similar(mu, self.encode(torch.cat(rows))[0])
 
 
 def _of_skill(buffers: tuple[SampleBuffer, ...], skill: int) -> tuple[Tensor, Tensor]:
@@ -705,4 +650,4 @@ def _at_most(values: Tensor, bound: float) -> bool:
     return float(values if values.numel() == 1 else values.max()) <= bound
 
 
-__all__ = ["KnowledgeValidityModule", "SYNTHETIC"]
+__all__ = ["KnowledgeValidityModule"]

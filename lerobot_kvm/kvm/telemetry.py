@@ -12,21 +12,23 @@ from torch import Tensor
 
 from .attribution import normalised_relevance
 
+TAU_V = 0.1  # App. E: v below tau_v is a suppression ("intervention"); also eq. 8's threshold
+
 
 class KvmStepTelemetry:
     """One KVM assessment. Tensors a closed gate leaves at their defaults (energy NaN, v = 1, skill weight 1, not
     invalid) and the relevances are materialised only when read, so the control loop pays for what callers use.
 
-    sigma2 [B]: sigma_c^2 of the current frame; sigma2_gate [B]: what the gate compared (mean over the last
-    `context_window` frames); tau []: tau_adaptive (eq. 1), -inf while there are no statistics; gate [B] bool:
-    full assessment ran; alpha [B, S]: per-skill relevance alpha_i = ||c_i||; energy [B, S]: E_theta(h_i) (or the
-    classifier's energy-equivalent), NaN where not assessed; validity [B, S]: v_i (1 where the gate was closed, 0
-    where invalid or pruned); skill_weight [B, S]: weight given to the pool (see kvm.fusion); invalid [B, S] bool:
-    non-finite context, code or energy -> v_i = 0 (fail-safe); active [S] bool: skills not pruned.
+    sigma2 [B]: sigma_c^2, what the gate compares; tau []: tau_adaptive (eq. 1), -inf while there are no statistics;
+    gate [B] bool: full assessment ran; alpha [B, S]: per-skill relevance alpha_i = ||c_i||; energy [B, S]:
+    E_theta(h_i) (or the classifier's energy-equivalent), NaN where not assessed; validity [B, S]: v_i (1 where the
+    gate was closed, 0 where invalid or pruned); skill_weight [B, S]: weight given to the pool (see kvm.fusion);
+    invalid [B, S] bool: non-finite context, code or energy -> v_i = 0 (fail-safe); active [S] bool: skills not
+    pruned.
     """
 
-    FIELDS = ("sigma2", "sigma2_gate", "tau", "gate", "alpha", "energy", "validity", "skill_weight", "invalid")
-    PER_ROW = ("sigma2", "sigma2_gate", "gate", "alpha", "energy", "validity", "skill_weight", "invalid")
+    FIELDS = ("sigma2", "tau", "gate", "alpha", "energy", "validity", "skill_weight", "invalid")
+    PER_ROW = ("sigma2", "gate", "alpha", "energy", "validity", "skill_weight", "invalid")
 
     def __init__(
         self,
@@ -35,12 +37,10 @@ class KvmStepTelemetry:
         gate: Tensor | None,
         alpha: Tensor | Callable[[], Tensor],
         active: Tensor,
-        sigma2_gate: Tensor | None = None,
         energy: Tensor | None = None,
         validity: Tensor | None = None,
         skill_weight: Tensor | None = None,
         invalid: Tensor | None = None,
-        tau_v: float = 0.1,
         candidate_min_alpha: float = 0.2,
     ) -> None:
         self.sigma2 = sigma2
@@ -48,12 +48,10 @@ class KvmStepTelemetry:
         self._gate = gate
         self._alpha = alpha
         self.active = active
-        self._sigma2_gate = sigma2_gate
         self._energy = energy
         self._validity = validity
         self._skill_weight = skill_weight
         self._invalid = invalid
-        self.tau_v = tau_v
         self.candidate_min_alpha = candidate_min_alpha
 
     @property
@@ -67,10 +65,6 @@ class KvmStepTelemetry:
         if self._gate is None:  # None: closed everywhere
             self._gate = torch.zeros_like(self.sigma2, dtype=torch.bool)
         return self._gate
-
-    @property
-    def sigma2_gate(self) -> Tensor:
-        return self.sigma2 if self._sigma2_gate is None else self._sigma2_gate
 
     @property
     def energy(self) -> Tensor:
@@ -110,7 +104,7 @@ class KvmStepTelemetry:
     @property
     def intervention(self) -> Tensor:
         """[B, S] bool: a candidate suppressed (v_i < tau_v)."""
-        return self.candidate & (self.validity < self.tau_v)
+        return self.candidate & (self.validity < TAU_V)
 
     @property
     def decision_weight(self) -> Tensor:
@@ -132,7 +126,6 @@ class KvmStepTelemetry:
 
         return {
             "sigma2": float(self.sigma2[b]),
-            "sigma2_gate": float(self.sigma2_gate[b]),
             "tau": float(self.tau),
             "gate": bool(self.gate[b]),
             "alpha": plain(self.alpha[b]),
@@ -152,7 +145,6 @@ class KvmStepTelemetry:
         return KvmStepTelemetry(
             tau=self.tau,
             active=self.active,
-            tau_v=self.tau_v,
             candidate_min_alpha=self.candidate_min_alpha,
             **{k: v[b : b + 1] for k, v in values.items()},
         )

@@ -86,21 +86,6 @@ class PromptedEncoderLayer(nn.Module):
         return x + self.drop(self.ff(self.norm2(x)))
 
 
-def _windowed_projection(context_dim: int, frames: int, dim_model: int) -> nn.Linear:
-    """The context's projection, initialised as the current frame's alone with zero columns for the earlier frames
-    (a context of `frames` equal frames, the current one first): a windowed policy starts as the frame-only one
-    and learns what the window adds, and the window moves no other weight's initialisation, so that a comparison
-    with and without it differs in the window alone."""
-    frame = nn.Linear(context_dim // frames, dim_model)
-    if frames == 1:
-        return frame
-    proj = nn.utils.skip_init(nn.Linear, context_dim, dim_model)  # draws nothing from the random stream
-    with torch.no_grad():
-        proj.weight.zero_()[:, : frame.in_features] = frame.weight
-        proj.bias.copy_(frame.bias)
-    return proj
-
-
 class PromptedBackbone(nn.Module):
     """Tokenises an observation, runs the prefix-tuned transformer and decodes an action chunk."""
 
@@ -111,7 +96,6 @@ class PromptedBackbone(nn.Module):
         n_cameras: int,
         state_dim: int,
         context_dim: int,
-        context_frames: int = 1,
         action_dim: int,
         chunk_size: int,
         vision_channels: list[int],
@@ -128,7 +112,7 @@ class PromptedBackbone(nn.Module):
         self.col_embed = nn.Parameter(torch.randn(1, grid_w, dim_model) * 0.02)
         self.camera_embed = nn.Parameter(torch.randn(n_cameras, 1, dim_model) * 0.02)
         self.state_proj = nn.Linear(state_dim, dim_model)
-        self.context_proj = _windowed_projection(context_dim, context_frames, dim_model)
+        self.context_proj = nn.Linear(context_dim, dim_model)
         self.type_embed = nn.Parameter(torch.randn(2, dim_model) * 0.02)  # proprio, context
         self.action_queries = nn.Parameter(torch.randn(chunk_size, dim_model) * 0.02)
         self.layers = nn.ModuleList(

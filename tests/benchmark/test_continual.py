@@ -45,47 +45,11 @@ def test_task_names_and_instructions():
         (lambda: SequenceConfig("s", [TaskSpec("book"), TaskSpec("book")], [MethodSpec("m")]), "distinct"),
         (lambda: SequenceConfig("s", [TaskSpec("book")], [MethodSpec("m", checkpoints_from="later")]), "later"),
         (lambda: MethodSpec("m", mode="joint", checkpoints_from="x"), "sequential"),
-        (lambda: SequenceConfig("s", [TaskSpec("book")], [MethodSpec("m")], context_lags=[2, 0]), "positive"),
     ],
 )
 def test_bad_configs_are_rejected_with_the_offending_value(make, message):
     with pytest.raises(ValueError, match=message):
         make()
-
-
-def test_a_windowed_sequence_records_evaluates_and_trains_with_its_context_lags(tmp_path):
-    import draccus
-
-    from lerobot_kvm.benchmark.continual import ContinualRun
-    from lerobot_kvm.envs import KvmObsolescenceEnvConfig
-    from lerobot_kvm.envs.sensing import FRAME_NAMES
-
-    method = MethodSpec("coda_kvm")
-    config = SequenceConfig("w", [TaskSpec("book")], [method, MethodSpec("act", policy="act")], context_lags=[1, 4])
-    assert config.recording_spec().context_lags == [1, 4]
-    # the evaluation's environment arguments parse as LeRobot's CLI parses them, into the recorded window
-    (env_arg,) = config.env_args
-    env = draccus.parse(config_class=KvmObsolescenceEnvConfig, args=[env_arg.replace("--env.", "--")])
-    assert env.features["context"].shape == (3 * len(FRAME_NAMES),)
-    assert SequenceConfig("f", [TaskSpec("book")], [method]).env_args == []
-
-    run = ContinualRun(config, tmp_path)
-    assert "--policy.kvm.context_frames=3" in run._policy_args(method, None, "pretrain")
-    # a later stage loads the setting with the checkpoint; ACT has no KVM
-    assert not any("context_frames" in a for a in run._policy_args(method, tmp_path, "book.careful"))
-    assert not any("context_frames" in a for a in run._policy_args(config.methods[1], None, None))
-
-
-def test_a_dataset_recorded_with_another_window_is_refused(tmp_path):
-    from lerobot_kvm.benchmark.continual import check_dataset_window
-    from lerobot_kvm.datasets.recorder import LABELS_FILE
-
-    labels = tmp_path / LABELS_FILE
-    labels.parent.mkdir(parents=True)
-    labels.write_text(json.dumps({"spec": {"context_lags": [1, 4]}, "episodes": []}))
-    check_dataset_window(tmp_path, [1, 4])
-    with pytest.raises(ValueError, match=r"recorded with context_lags=\[1, 4\], the sequence asks for \[\]"):
-        check_dataset_window(tmp_path, [])
 
 
 def test_a_sequence_trains_every_stage_on_its_device(tmp_path, monkeypatch):

@@ -8,7 +8,8 @@ from dataclasses import asdict
 import pytest
 
 from lerobot_kvm.cli import walkthrough
-from lerobot_kvm.datasets.recorder import LABELS_FILE, RecordingSpec
+from lerobot_kvm.datasets.labels import LABELS_FILE
+from lerobot_kvm.datasets.recorder import RecordingSpec
 
 
 @pytest.fixture

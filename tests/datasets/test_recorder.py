@@ -5,7 +5,8 @@ import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_kvm.datasets import recorder
-from lerobot_kvm.datasets.recorder import RecordingSpec, RecordItem, load_label_vocab, load_labels, record_dataset
+from lerobot_kvm.datasets.labels import load_label_vocab, load_labels
+from lerobot_kvm.datasets.recorder import RecordingSpec, RecordItem, record_dataset
 
 
 def tiny_spec() -> RecordingSpec:

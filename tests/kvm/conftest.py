@@ -8,8 +8,8 @@ import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_kvm.kvm.configuration import KvmConfig
-from lerobot_kvm.kvm.online import make_demonstration
 from lerobot_kvm.policy import CodaKvmConfig, CodaKvmPolicy
+from lerobot_kvm.policy.feedback import make_demonstration
 
 IMAGE_KEY = "observation.images.front"
 CONTEXT_KEY = "observation.context"

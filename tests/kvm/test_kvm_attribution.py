@@ -14,9 +14,8 @@ from lerobot_kvm.kvm.attribution import (
     knowledge_gap,
     normalised_relevance,
 )
-from lerobot_kvm.kvm.experience import ExperienceViews, SafeExperience
 from lerobot_kvm.kvm.memory import PERMANENT
-from lerobot_kvm.kvm.online import make_demonstration
+from lerobot_kvm.policy.feedback import FAIL_CONTEXT_STEPS, make_demonstration
 
 EGG = "pick up the egg"
 
@@ -105,7 +104,7 @@ def test_a_demonstration_verifies_the_culprit_by_removing_each_proposed_skill(
     policy.begin_new_skill("gentle_grasp")
     policy.begin_new_skill("slow_lift")
     trace = attempt(policy, EGG, steps=6)
-    proposed = culprit_skill(policy.skill_relevance([EGG] * 6), last_k=policy.config.kvm.fail_context_steps)
+    proposed = culprit_skill(policy.skill_relevance([EGG] * 6), last_k=FAIL_CONTEXT_STEPS)
     blamed = (proposed + 1) % 3
     weights = torch.ones(1, 3)
     weights[0, blamed] = 0.0
@@ -121,11 +120,6 @@ def test_a_demonstration_verifies_the_culprit_by_removing_each_proposed_skill(
     assert evidence["gain"][blamed] == pytest.approx(evidence["error"], abs=1e-6)  # its removal is the demo
     assert report["demo_skill"] == evidence["agrees"] != blamed
     assert report["hypothesis"]["skill"] == blamed
-    policy.config.kvm.attribution = "relevance"
-    report = policy.kvm_feedback("catastrophe", trace, demonstration=demo, gradient_steps=0)
-    assert report["culprit"] == proposed and report["attribution"] == {"rule": "relevance", "agrees": None}
-    with pytest.raises(ValueError, match="attribution"):
-        make_kvm_config(attribution="oracle")
 
 
 def _force_suppression(trace, skill: int, value: float = 0.01) -> None:
@@ -190,32 +184,19 @@ def _demonstration(policy, make_batch, steps: int = 5, skill: str | None = None)
     return make_demonstration(per_step, skill=skill)
 
 
-def test_with_the_joint_online_encoder_the_failed_contexts_move_the_codes_too(
-    make_policy, make_kvm_config, make_batch, attempt
-) -> None:
-    policy = make_policy(kvm=make_kvm_config(online_encoder="joint"))
-    encoder = {k: v.clone() for k, v in policy.kvm.encoder.state_dict().items()}
-    demo = _demonstration(policy, make_batch)
-    policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6), demonstration=demo, gradient_steps=2)
-    assert any(not torch.equal(v, encoder[k]) for k, v in policy.kvm.encoder.state_dict().items())
-    with pytest.raises(ValueError, match="online_encoder"):
-        make_kvm_config(online_encoder="frozen")
-
-
 def test_a_failure_without_a_strong_alternative_seeds_a_correcting_skill_from_its_demonstration(
     make_policy, make_kvm_config, make_batch, attempt
 ) -> None:
     # one skill: nothing else could take over once it is suppressed
-    policy = make_policy()  # the default online encoder: "reconstruction"
+    policy = make_policy()
     backbone = {k: v.clone() for k, v in policy.backbone.state_dict().items()}
     old_skill = {k: v.clone() for k, v in policy.pool.tasks[0].state_dict().items()}
     encoder = {k: v.clone() for k, v in policy.kvm.encoder.state_dict().items()}
     energy = {k: v.clone() for k, v in policy.kvm.energy.state_dict().items()}
     demo = _demonstration(policy, make_batch)
     report = policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6), demonstration=demo, gradient_steps=2)
-    # with online_encoder=reconstruction, E_c learns from routine reconstruction only (there is none here): the
-    # failed contexts, safe for the correction and hazardous for the culprit, move the energy model but not the
-    # codes the gate reads
+    # online, E_c learns from routine reconstruction only (there is none here): the failed contexts, safe for the
+    # correction and hazardous for the culprit, move the energy model but not the codes the gate reads
     assert all(torch.equal(v, encoder[k]) for k, v in policy.kvm.encoder.state_dict().items())
     assert any(not torch.equal(v, energy[k]) for k, v in policy.kvm.energy.state_dict().items())
     new = report["new_skill"]
@@ -362,45 +343,6 @@ def test_a_failure_that_looks_exactly_like_safe_experience_adds_no_negatives(mak
     assert report["culprit"] == 0 and report["negatives_added"] == 0
 
 
-def test_the_last_steps_of_a_failure_are_blamed_whatever_the_safe_experience_says(
-    make_policy, make_kvm_config, attempt
-) -> None:
-    policy = make_policy(kvm=make_kvm_config(fail_context_last=2))
-    trace = attempt(policy, EGG, steps=6, seed=0)
-    c_raw = policy.kvm.raw_context(torch.cat(trace.contexts), policy.encode_query([EGG] * len(trace)))
-    for episode in range(2):  # the very contexts of this attempt, recorded safe in two episodes
-        policy.kvm.safe_offline.add(c_raw, skill=0, tag=episode)
-    report = policy.kvm_feedback("catastrophe", trace, gradient_steps=0)
-    assert report["failure_context_steps"] == [4, 5] and report["negatives_added"] == 2
-
-
-def test_a_context_is_known_safe_only_where_every_view_knows_it() -> None:
-    """The window and its current frame: a step near the safe experience in one view but far in the other is not
-    known, and an attempt has departed from where it has in either view."""
-    samples = torch.tensor([[0.0, 0.0], [1.0, 1.0]])
-    spread = torch.ones(2)
-    first, second = (lambda c: c[:, :1]), (lambda c: c[:, 1:])
-    views = ExperienceViews(
-        [(first, SafeExperience(first(samples), spread)), (second, SafeExperience(second(samples), spread))]
-    )
-    steps = torch.tensor([[0.5, 0.5], [9.0, 0.5], [9.0, 9.0], [9.0, 0.5]])  # the first view leaves for good
-    assert views.known(steps, 1.0).tolist() == [True, False, False, False]
-    assert views.departed(steps, 1.0).tolist() == [False, True, True, True]
-    assert not views.departed(steps[:, [1, 1]], 1.0).any()  # neither view ends far
-
-
-def test_a_windowed_context_is_seen_whole_and_by_its_current_frame(make_policy, make_kvm_config) -> None:
-    kvm = make_policy(kvm=make_kvm_config(context_frames=2)).kvm
-    rows = torch.randn(6, kvm.encoder.raw_dim)
-    kvm.safe_offline.add(rows, skill=0, tag=torch.tensor([0, 0, 0, 1, 1, 1]))
-    views = kvm.safe_experience(0).views
-    assert [view(rows).shape[1] for view, _ in views] == [
-        kvm.encoder.raw_dim,
-        kvm.encoder.raw_dim - kvm.encoder.frame_dim,
-    ]
-    torch.testing.assert_close(views[1][1].samples, kvm.encoder.frame_view(rows))
-
-
 def test_a_failure_that_leaves_the_safe_experience_for_good_is_blamed_from_where_it_left(
     make_policy, make_kvm_config, attempt
 ) -> None:
@@ -456,37 +398,3 @@ def test_online_successes_and_demonstrations_are_never_another_skills_negatives(
     flags = torch.cat([torch.ones(6, dtype=torch.bool), torch.zeros(5, dtype=torch.bool)])
     neg_c, neg_s = kvm.negatives_for(c_raw, skills, active, flags)
     assert torch.equal(neg_c, recorded) and neg_s.tolist() == [1, 1, 1, 0, 0, 0]
-
-
-def test_the_gate_opens_in_the_contexts_of_a_failure_met_online_and_nowhere_else(
-    make_policy, make_kvm_config, attempt
-) -> None:
-    """Fig. 2, phase 3: after a failed attempt's feedback the gate opens on its contexts, even where sigma_c^2
-    stays below tau, while routine contexts keep it closed; `kvm.failure_gate=false` leaves the old decision."""
-    rates = {}
-    for failure_gate in (False, True):
-        policy = make_policy(kvm=make_kvm_config(failure_gate=failure_gate))
-        for seed in range(4):  # routine successes fill the gate's window
-            policy.kvm_feedback("success", attempt(policy, EGG, steps=6, seed=seed), gradient_steps=0)
-        failed = attempt(policy, EGG, steps=6, seed=9)
-        report = policy.kvm_feedback("catastrophe", failed, gradient_steps=0)
-        kvm = policy.kvm
-        with torch.no_grad():
-            c_raw = kvm.raw_context(torch.cat(failed.contexts), policy.encode_query([EGG] * len(failed)))
-            stored = kvm.failure_contexts()
-            mu, sigma2, _ = kvm.encode(stored)
-            routine = attempt(policy, EGG, steps=6, seed=20)
-        assert report["negatives_added"] == len(stored) > 0 and bool((sigma2 <= kvm.threshold()).any())
-        assert bool(torch.isin(stored, c_raw).all())
-        rates[failure_gate] = (float(kvm.gate_open(mu, sigma2).float().mean()), routine.summary()["gate_open_steps"])
-    assert rates[True][0] == 1.0 and rates[False][0] < 1.0
-    assert rates[True][1] == rates[False][1] < 3
-
-
-def test_a_policy_with_a_windowed_context_learns_from_a_failure(make_policy, make_kvm_config, attempt) -> None:
-    policy = make_policy(kvm=make_kvm_config(context_frames=2, fail_context_last=2))
-    assert policy.kvm.encoder.frame_dim == policy.config.context_dim // 2
-    report = policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6, seed=0), gradient_steps=2)
-    assert report["negatives_added"] >= 2 and {4, 5} <= set(report["failure_context_steps"])
-    trace = attempt(policy, EGG, steps=4, seed=0)
-    assert all(torch.isfinite(t.validity).all() for t in trace.telemetry if t is not None and t.validity is not None)

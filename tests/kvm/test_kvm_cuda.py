@@ -7,8 +7,8 @@ from collections.abc import Iterator
 import pytest
 import torch
 
-from lerobot_kvm.kvm.online import chunk_targets
 from lerobot_kvm.policy import CodaKvmPolicy
+from lerobot_kvm.policy.feedback import chunk_targets
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 CUDA = torch.device("cuda")

@@ -45,18 +45,6 @@ def test_eq1_gate_uses_the_last_n_successful_interactions() -> None:
     assert gate.stats[1].item() == pytest.approx(1.0) and gate.stats[2].item() == pytest.approx(math.sqrt(1.25) / 2.5)
 
 
-def test_gate_opens_near_a_failure_where_no_safe_reference_is_nearer() -> None:
-    """Codes are the raw contexts here; the safe references are centred on the origin."""
-    safe = torch.tensor([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0], [1.0, 0.8], [-1.0, -0.8]])
-    gate = SmartGate(window=8, raw_dim=2, k=3.0, min_count=3, n_parts=1, failures=lambda: torch.tensor([[1.0, 1.0]]))
-    gate.push(safe)
-    gate.ensure_fresh(_FirstColumnIsTheResidual())
-    mu = torch.tensor([[2.0, 2.0], [2.0, 3.0], [1.0, 0.0], [1.0, 0.85]])
-    # cosine to the failure: 1.0, 0.981 (to [1, 0.8]: 0.953), 0.707 (< 0.9), 0.997 (to [1, 0.8]: 0.9998)
-    assert gate.near_failure(mu).tolist() == [True, True, False, False]
-    assert SmartGate(window=8, raw_dim=2, k=3.0, min_count=3, n_parts=1).near_failure(mu) is None
-
-
 def test_eq1_gate_also_covers_the_routine_rows_of_a_long_term_safe_memory() -> None:
     from lerobot_kvm.kvm.memory import ROUTINE, SampleBuffer
 
@@ -293,27 +281,3 @@ def test_joint_feature_keeps_the_skill_in_a_far_context() -> None:
     assert h.shape == (1, 2, 2)
     assert torch.allclose(h[0], torch.tensor([[s, s], [s, -s]]))
     assert torch.allclose(joint(far.expand(2, -1), torch.arange(2)), h[0])
-
-
-def test_the_encoder_of_a_windowed_context_reads_its_current_frame() -> None:
-    """With earlier frames in the sensed context, E_c and its gate probe read the current frame and the query only:
-    the earlier frames change neither the code nor sigma_c^2."""
-    torch.manual_seed(0)
-    enc = ContextEncoder(
-        sensed_dim=6, query_dim=4, hidden=[8], latent_dim=2, use_query=True, query_weight=0.5, frames=3
-    )
-    assert (enc.frame_dim, enc.raw_dim) == (2, 10)
-    sensed, query = torch.randn(5, 6), torch.randn(5, 4)
-    c_raw = enc.raw_context(sensed, query)
-    torch.testing.assert_close(enc.frame_view(c_raw), torch.cat([c_raw[:, :2], c_raw[:, 6:]], dim=-1))
-    other = sensed.clone()
-    other[:, 2:] = torch.randn(5, 4)  # other earlier frames, the same current one
-    mu, parts = enc(c_raw)
-    mu_other, parts_other = enc(enc.raw_context(other, query))
-    torch.testing.assert_close((mu, parts), (mu_other, parts_other))
-    scale = torch.tensor([0.3, 0.02])
-    sigma2, hidden_code = enc.gate_probe(scale)(sensed, query)
-    torch.testing.assert_close(sigma2, enc.sigma2(parts, scale))
-    torch.testing.assert_close(enc.gate_probe(scale).code(hidden_code), mu)
-    with pytest.raises(ValueError, match="cannot hold 4 frames"):
-        ContextEncoder(sensed_dim=6, query_dim=4, hidden=[8], latent_dim=2, use_query=True, query_weight=0.5, frames=4)

@@ -7,11 +7,21 @@ import draccus
 import pytest
 import torch
 
+from lerobot_kvm.evaluation.overhead import measure_overhead, paired_ratio
+from lerobot_kvm.kvm.attribution import PERSISTENCE
 from lerobot_kvm.kvm.configuration import KvmConfig
-from lerobot_kvm.kvm.overhead import measure_overhead, paired_ratio
+from lerobot_kvm.kvm.energy import GAMMA, L0
+from lerobot_kvm.kvm.losses import ENERGY_MARGIN
+from lerobot_kvm.kvm.metabolism import METABOLISM_WINDOW, PRUNE_THRESHOLD
+from lerobot_kvm.kvm.telemetry import TAU_V
 from lerobot_kvm.policy import CodaKvmConfig
 
 CONTEXT = "observation.context"
+
+
+def core_chunk(policy, batch, skill_weights=None):
+    """The CODA-Prompt core's chunk under the given skill weights (None: the plain CODA prompt), the KVM left out."""
+    return policy.decode(batch, policy.pool.component_alphas(policy.encode_query(batch["task"])), skill_weights)
 
 
 def two_skill_policy(make_policy, **overrides):
@@ -24,7 +34,7 @@ def two_skill_policy(make_policy, **overrides):
 def test_kvm_disabled_gives_exactly_the_coda_core_actions(make_policy, make_batch) -> None:
     policy = two_skill_policy(make_policy)
     batch = make_batch(policy.config, with_action=False)
-    core = policy._predict(batch, None)  # plain CODA-Prompt
+    core = core_chunk(policy, batch)  # plain CODA-Prompt
     policy.config.kvm.enabled = False
     assert torch.equal(policy.predict_action_chunk(batch), core)
     assert policy.kvm_telemetry is None
@@ -35,7 +45,7 @@ def test_kvm_disabled_gives_exactly_the_coda_core_actions(make_policy, make_batc
 def test_every_v_forced_to_one_gives_exactly_the_coda_core_actions(make_policy, make_batch, make_kvm_config) -> None:
     policy = two_skill_policy(make_policy, kvm=make_kvm_config(force_validity=1.0, smart_gate=False))
     batch = make_batch(policy.config, with_action=False)
-    core = policy._predict(batch, None)
+    core = core_chunk(policy, batch)
     assert torch.equal(policy.predict_action_chunk(batch), core)
     tele = policy.kvm_telemetry
     assert tele.gate.all() and torch.equal(tele.validity, torch.ones(4, 2))
@@ -45,7 +55,7 @@ def test_every_v_forced_to_one_gives_exactly_the_coda_core_actions(make_policy, 
 def test_closed_gate_gives_exactly_the_coda_core_actions(make_policy, make_batch) -> None:
     policy = two_skill_policy(make_policy)
     batch = make_batch(policy.config, with_action=False)
-    core = policy._predict(batch, None)
+    core = core_chunk(policy, batch)
     policy.kvm.set_gate_override("closed")
     assert torch.equal(policy.predict_action_chunk(batch), core)
     assert not policy.kvm_telemetry.gate.any() and torch.isnan(policy.kvm_telemetry.energy).all()
@@ -76,8 +86,8 @@ def test_a_correction_is_out_of_force_with_the_gate_closed_and_takes_over_where_
     tele = policy.kvm_telemetry
     assert torch.equal(tele.skill_weight, without_fix) and torch.equal(tele.validity, torch.ones(4, 2))
     assert not tele.intervention.any()  # leaving an unassessed correction out is no suppression
-    assert torch.equal(closed, policy._predict(batch, without_fix))
-    assert not torch.equal(closed, policy._predict(batch, None))
+    assert torch.equal(closed, core_chunk(policy, batch, without_fix))
+    assert not torch.equal(closed, core_chunk(policy, batch))
     policy.kvm.set_gate_override("open")
     policy.predict_action_chunk(batch)
     tele = policy.kvm_telemetry
@@ -295,22 +305,17 @@ def test_kvm_config_on_the_command_line_and_validation() -> None:
     assert cfg.kvm.enabled is False and cfg.kvm.risk_model == "bce" and cfg.kvm.smart_gate is False
     assert cfg.kvm.gate_k == 2.0
     defaults = KvmConfig()
-    assert (defaults.gate_k, defaults.gate_window, defaults.gamma, defaults.l0) == (3.0, 1000, 1.0, -5.0)
-    assert (defaults.energy_margin, defaults.persistence, defaults.tau_high, defaults.tau_v) == (10.0, 3, 0.8, 0.1)
-    assert (defaults.metabolism_window, defaults.prune_threshold) == (5, 0.8)
+    assert (defaults.gate_k, defaults.gate_window, GAMMA, L0) == (3.0, 1000, 1.0, -5.0)  # App. E
+    assert (ENERGY_MARGIN, PERSISTENCE, defaults.tau_high, TAU_V) == (10.0, 3, 0.8, 0.1)
+    assert (METABOLISM_WINDOW, PRUNE_THRESHOLD) == (5, 0.8)
     assert defaults.encoder_hidden == [128, 128] and defaults.energy_hidden == [256, 256, 256]
     for bad, name in [
         ({"risk_model": "svm"}, "risk_model"),
-        ({"gap_init": "random"}, "gap_init"),
-        ({"tau_v": 1.5}, "tau_v"),
+        ({"tau_high": 1.5}, "tau_high"),
         ({"gate_window": 0}, "gate_window"),
-        ({"energy_margin": 30.0}, "energy_margin"),
         ({"encoder_hidden": []}, "encoder_hidden"),
         ({"departure_radius": 0.0}, "departure_radius"),
         ({"feedback_hard_safe_replay": -1}, "feedback_hard_safe_replay"),
-        ({"neighbour_quantile": 1.2}, "neighbour_quantile"),
-        ({"neighbour_slope": 0.0}, "neighbour_slope"),
-        ({"neighbour_space": "latent"}, "neighbour_space"),
     ]:
         with pytest.raises(ValueError, match=name):
             KvmConfig(**bad)
@@ -334,16 +339,3 @@ def test_paired_ratio_cancels_a_drift_between_rotations() -> None:
     assert paired_ratio(closed, off) == pytest.approx(1.1)
     with pytest.raises(ValueError):
         paired_ratio(closed, off[:2])
-
-
-def test_skill_dropout_trains_the_current_skill_alone_on_some_samples(make_policy, make_batch) -> None:
-    policy = make_policy(skill_dropout=0.5)
-    policy.begin_new_skill("gentle_grasp")
-    torch.manual_seed(3)
-    weights = policy._skill_dropout_weights(1000, torch.device("cpu"))
-    assert (weights[:, 1] == 1).all() and 0.4 < float((weights[:, 0] == 0).float().mean()) < 0.6
-    policy.train()
-    loss, _ = policy.forward(make_batch(policy.config))
-    assert torch.isfinite(loss)
-    with pytest.raises(ValueError, match="skill_dropout"):
-        make_policy(skill_dropout=1.0)

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from lerobot_kvm.kvm.configuration import KvmConfig
-from lerobot_kvm.kvm.energy import SkillScorer
+from lerobot_kvm.kvm.energy import ENERGY_MAX, SkillScorer
 from lerobot_kvm.kvm.supervisor import KnowledgeValidityModule
 
 
@@ -30,7 +30,7 @@ def test_scorer_matches_the_modules_on_the_joint_feature(model: str) -> None:
     assert reference.abs().max() > 1.0  # not a comparison of near-zero values
     assert torch.allclose(scored, reference, rtol=1e-4, atol=1e-5)
     if model == "energy":  # the bound survives the folding of 1 / E_max into the output layer
-        assert scored.abs().max() <= kvm.config.energy_max
+        assert scored.abs().max() <= ENERGY_MAX
 
 
 def test_scorer_is_a_snapshot_rebuilt_after_a_weight_update() -> None:
@@ -57,7 +57,7 @@ def test_scorer_covers_the_skills_asked_for() -> None:
     kvm = make_kvm()
     mu = torch.randn(2, kvm.config.latent_dim)
     with torch.no_grad():
-        few = SkillScorer(kvm.joint, kvm.energy.net, 2, kvm.config.energy_max)(mu)
-        more = SkillScorer(kvm.joint, kvm.energy.net, 5, kvm.config.energy_max)(mu)
+        few = SkillScorer(kvm.joint, kvm.energy.net, 2, ENERGY_MAX)(mu)
+        more = SkillScorer(kvm.joint, kvm.energy.net, 5, ENERGY_MAX)(mu)
     assert few.shape == (2, 2) and more.shape == (2, 5)
     assert torch.allclose(few, more[:, :2])

@@ -111,7 +111,7 @@ def test_preprocessor_keeps_task_and_normalizes_context(make_config, make_batch,
 
 def test_processors_of_a_checkpoint_follow_the_policy_to_its_device(make_config, make_batch, make_policy, tmp_path):
     """A checkpoint trained on another device (its saved preprocessor names `cuda`) runs where the policy now is."""
-    from lerobot_kvm.kvm.evaluation import policy_processors
+    from lerobot_kvm.evaluation.rollouts import policy_processors
 
     config = make_config()
     pre, post = make_coda_kvm_pre_post_processors(config, dataset_stats=stats_for(config))

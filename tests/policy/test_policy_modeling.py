@@ -242,32 +242,3 @@ def test_bad_select_action_input_raises(make_policy, make_batch) -> None:
     batch["observation.state"] = torch.zeros(6)
     with pytest.raises(ValueError, match=r"observation\.state.*\[1, 6\]"):
         policy.select_action(batch)
-
-
-def test_a_windowed_policy_starts_as_the_frame_only_one(make_policy, make_config, make_batch) -> None:
-    """The earlier frames' columns of the context projection start at zero and draw nothing from the random stream:
-    every other weight starts as without the window, and so do the actions."""
-    from dataclasses import replace
-
-    from lerobot.configs.types import FeatureType, PolicyFeature
-
-    key = "observation.context"
-    frame = make_policy()
-    n = frame.config.context_dim
-    config = make_config()
-    config.input_features = {**config.input_features, key: PolicyFeature(FeatureType.STATE, (3 * n,))}
-    config.kvm = replace(config.kvm, context_frames=3)
-    torch.manual_seed(0)
-    windowed = CodaKvmPolicy(config)
-
-    shared, window = dict(frame.named_parameters()), dict(windowed.named_parameters())
-    assert shared.keys() == window.keys()
-    projection = "backbone.context_proj.weight"
-    assert all(torch.equal(p, window[k]) for k, p in shared.items() if k != projection)
-    assert torch.equal(window[projection][:, :n], shared[projection]) and not window[projection][:, n:].any()
-
-    batch = make_batch(frame.config, with_action=False)
-    windowed_batch = {**batch, key: torch.cat([batch[key], torch.rand(len(batch["task"]), 2 * n)], dim=-1)}
-    frame.eval(), windowed.eval()
-    # the same to float rounding: the zero columns change the projection's order of summation
-    torch.testing.assert_close(frame.predict_action_chunk(batch), windowed.predict_action_chunk(windowed_batch))

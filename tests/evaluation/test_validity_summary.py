@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from lerobot_kvm.cli.kvm_check import seed_list, summary_rows
-from lerobot_kvm.kvm.validity_check import judge, labelling, summarise, with_history
+from lerobot_kvm.evaluation.validity_check import judge, labelling, summarise, with_history
 
 
 def _row(seed: int, auroc: float | None, v_prior: float, v_shifted: float | None, gate: float) -> dict:

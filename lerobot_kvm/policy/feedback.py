@@ -7,8 +7,8 @@ after an attempt:
   skill the CL core proposed (the culprit rule below, applied whatever the outcome).
 * failure: the culprit (minimal counterfactual: the skill that carried the largest share of the fused prompt over
   the last K steps) and the failure context (steps outside the safe experience, sigma_c^2 > tau, plus the last K
-  steps, the last `kvm.fail_context_last` steps whatever the safe experience says, and the steps from which the
-  attempt left the culprit's safe experience for good, `SafeExperience.departed`) form a low-confidence
+  steps, and the steps from which the attempt left the culprit's safe experience for good,
+  `SafeExperience.departed`) form a low-confidence
   hypothesis, or add evidence to a matching one. The failure context paired with the culprit becomes provisional
   h_fail negatives; a corrective demonstration gives positives for the skill that demonstrates the safe strategy
   (its name in `demonstration["skill"]`, else the most relevant alternative), in its own contexts and in the
@@ -34,28 +34,65 @@ after an attempt:
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import torch
 import torch.nn.functional as F  # noqa: N812
-from torch import Tensor
+from torch import Tensor, nn
 
-from .attribution import (
+from ..kvm.attribution import (
     OPEN,
     agreeing_skill,
     counterfactual_culprit,
     culprit_skill,
+    demonstrated_skill,
     knowledge_gap,
     normalised_relevance,
 )
-from .experience import ExperienceViews
-from .fusion import fuse_weights, plain_scale
-from .telemetry import KvmTrace
-
-if TYPE_CHECKING:
-    from ..policy.modeling_coda_kvm import CodaKvmPolicy
+from ..kvm.experience import SafeExperience
+from ..kvm.fusion import fuse_weights, plain_scale
+from ..kvm.supervisor import KnowledgeValidityModule
+from ..kvm.telemetry import TAU_V, KvmTrace
+from .coda_prompt import CodaPromptPool, Skill
+from .configuration_coda_kvm import CodaKvmConfig
 
 OUTCOMES = ("success", "failure", "catastrophe")
+FAIL_CONTEXT_STEPS = 10  # App. D: K, the last steps before a failure that the culprit rule and its context read ...
+# ... unless they lie inside the culprit's safe experience: the quantile of the safe memory's cross-episode
+# nearest-neighbour distances below which a context counts as already known safe (`SafeExperience.known`)
+KNOWN_SAFE_QUANTILE = 0.95
+# App. D minimal counterfactual: another proposed skill is blamed when taking it out of the prompt cuts the
+# action error on the corrective demonstration by more than this share, and by that much more than removing the
+# largest share does
+ATTRIBUTION_MARGIN = 0.1
+FOCUSED_LR = 3e-3  # App. D focused fine-tuning: Adam step size on the new skill's parameters
+FOCUSED_KEY_WEIGHT = 1.0  # App. D focused fine-tuning: pull of the new skill's CODA keys towards its seed queries
+
+
+class FeedbackPolicy(Protocol):
+    """What the feedback reads and drives of the policy (`CodaKvmPolicy` is one): a protocol, so that this module
+    and the policy's module do not import each other."""
+
+    config: CodaKvmConfig
+    kvm: KnowledgeValidityModule
+    pool: CodaPromptPool
+    backbone: nn.Module
+    query_fingerprint: Tensor
+    training: bool
+
+    @property
+    def skills(self) -> list[Skill]: ...
+    @property
+    def n_skills(self) -> int: ...
+    def train(self, mode: bool = True) -> Any: ...
+    def eval(self) -> Any: ...
+    def encode_query(self, tasks: Sequence[str]) -> Tensor: ...
+    def kvm_active_skills(self) -> Tensor: ...
+    def begin_new_skill(self, name: str, description: str = "", corrects: int | None = None) -> int: ...
+    def predict_action_chunk(self, batch: dict[str, Any], skill_weights: Tensor | None = None) -> Tensor: ...
+    def decode(self, batch: dict[str, Any], alphas: Tensor, skill_weights: Tensor | None) -> Tensor: ...
+
+
 ACTION = "action"
 ACTION_PAD = "action_is_pad"
 
@@ -96,12 +133,12 @@ def chunk_targets(actions: Tensor, chunk: int) -> tuple[Tensor, Tensor]:
     return actions[idx.clamp(max=t_len - 1)], pad
 
 
-def _observation_keys(policy: "CodaKvmPolicy") -> tuple[str, ...]:
+def _observation_keys(policy: FeedbackPolicy) -> tuple[str, ...]:
     """The observation tensors the policy reads: what a seed frame or a demonstration step must carry."""
     return (*policy.config.image_features, "observation.state", policy.config.context_key)
 
 
-def _demo_frames(policy: "CodaKvmPolicy", demo: dict[str, Any]) -> dict[str, Any]:
+def _demo_frames(policy: FeedbackPolicy, demo: dict[str, Any]) -> dict[str, Any]:
     keys = _observation_keys(policy)
     missing = [k for k in (*keys, ACTION) if not isinstance(demo.get(k), Tensor)]
     if missing:
@@ -122,7 +159,7 @@ def _demo_frames(policy: "CodaKvmPolicy", demo: dict[str, Any]) -> dict[str, Any
     return frames
 
 
-def _trace_frames(policy: "CodaKvmPolicy", trace: KvmTrace) -> dict[str, Any] | None:
+def _trace_frames(policy: FeedbackPolicy, trace: KvmTrace) -> dict[str, Any] | None:
     """Seed frames (observations + the actions the policy executed) of a successful one-environment trace."""
     if not trace.observations or len(trace.observations) != len(trace):
         return None
@@ -144,7 +181,7 @@ def _cat_frames(parts: list[dict[str, Any]]) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------- counterfactual attribution
 @torch.no_grad()
-def removal_errors(policy: "CodaKvmPolicy", frames: dict[str, Any], candidates: Tensor) -> tuple[float, Tensor]:
+def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], candidates: Tensor) -> tuple[float, Tensor]:
     """The policy's action error on demonstration frames with every active skill in force (the CODA prompt before
     the KVM's re-weighting), and [S] the error with each candidate taken out of the prompt (inf elsewhere).
 
@@ -175,17 +212,18 @@ def removal_errors(policy: "CodaKvmPolicy", frames: dict[str, Any], candidates: 
 
 
 def _attribute(
-    policy: "CodaKvmPolicy", frames: dict[str, Any] | None, candidates: Tensor, proposed: int
+    policy: FeedbackPolicy, frames: dict[str, Any] | None, candidates: Tensor, proposed: int
 ) -> dict[str, Any]:
-    """Who is blamed for a failure (see `kvm.attribution`) and which skill the demonstration shows, with the
-    evidence: {"rule", "culprit", "agrees", "error", "gain" (skill -> error cut by its removal)}."""
-    cfg = policy.config.kvm
-    if frames is None or cfg.attribution != "counterfactual":
+    """Who is blamed for a failure and which skill the demonstration shows, with the evidence: {"rule", "culprit",
+    "agrees", "error", "gain" (skill -> error cut by its removal)}. Without a corrective demonstration: the proposed
+    skill (the largest share of the prompt); with one, that skill unless taking another proposed skill out of the
+    prompt cuts the policy's action error on the demonstration by `ATTRIBUTION_MARGIN` more (App. D)."""
+    if frames is None:
         return {"rule": "relevance", "culprit": proposed, "agrees": None}
     candidates = candidates.clone()
     candidates[proposed] = True
     error, without = removal_errors(policy, frames, candidates)
-    culprit = counterfactual_culprit(error, without, candidates, proposed, cfg.attribution_margin)
+    culprit = counterfactual_culprit(error, without, candidates, proposed, ATTRIBUTION_MARGIN)
     return {
         "rule": "relevance" if culprit == proposed else "counterfactual",
         "culprit": culprit,
@@ -197,7 +235,7 @@ def _attribute(
 
 # ---------------------------------------------------------------------------- focused fine-tuning of a new skill
 def focused_finetune(
-    policy: "CodaKvmPolicy",
+    policy: FeedbackPolicy,
     frames: dict[str, Any],
     skill: int,
     steps: int,
@@ -249,7 +287,7 @@ def focused_finetune(
                 weights = fuse_weights(
                     v[idx], pool.relevance_from_alphas(alphas).detach(), cfg.fusion_renormalize, cfg.fusion_eps
                 )
-                pred = policy._decode(sub, alphas, weights)
+                pred = policy.decode(sub, alphas, weights)
                 valid = (~sub[ACTION_PAD]).to(pred.dtype).unsqueeze(-1)
                 l1 = ((pred - sub[ACTION]).abs() * valid).sum() / (valid.sum() * pred.shape[-1]).clamp_min(1)
                 key = (1 - alphas[..., lo:hi]).mean()
@@ -293,16 +331,6 @@ def _steps(mask: Tensor) -> list[int]:
     return torch.nonzero(mask).flatten().tolist()
 
 
-@torch.no_grad()
-def _similar(kvm: Any, mu: Tensor, hypothesis_id: int) -> Tensor:
-    """[B] bool: context codes similar to a hypothesis's contexts (its prototype and negatives)."""
-    table = kvm.hypotheses
-    rows = [table.prototype[table.row(hypothesis_id)].unsqueeze(0)]
-    tagged = (kvm.fail_online.tag == hypothesis_id) & (kvm.fail_online.stamp >= 0)
-    rows.append(kvm.fail_online.data[tagged])
-    return kvm.gate.similar(mu, kvm.encode(torch.cat(rows))[0])
-
-
 @dataclass
 class _Attempt:
     """One reported attempt, encoded once: what the failure and the success branches of the feedback read."""
@@ -319,7 +347,7 @@ class _Attempt:
 
 
 def apply_feedback(
-    policy: "CodaKvmPolicy",
+    policy: FeedbackPolicy,
     outcome: str,
     trace: KvmTrace,
     demonstration: dict[str, Any] | None = None,
@@ -330,7 +358,7 @@ def apply_feedback(
     if outcome not in OUTCOMES:
         raise ValueError(f"outcome must be one of {OUTCOMES}, got {outcome!r}")
     if len(trace) == 0:
-        raise ValueError("the trace is empty: run an attempt with select_action (record_trace=True) first")
+        raise ValueError("the trace is empty: run an attempt with select_action first")
     if trace.batch_size != 1:
         raise ValueError(f"feedback takes one environment's trace, got batch size {trace.batch_size}: use .episode(b)")
     if gradient_steps is not None and gradient_steps < 0:
@@ -354,7 +382,7 @@ def apply_feedback(
     v_used, w_used = v_used.to(device), w_used.to(device)
     relevance = normalised_relevance(alphas, active)
     candidate = active.unsqueeze(0) & (relevance >= cfg.candidate_min_alpha)
-    intervention = candidate & (v_used < cfg.tau_v)
+    intervention = candidate & (v_used < TAU_V)
     share = (w_used * alphas).abs()
     attempt = _Attempt(
         c_raw, mu, sigma2 > tau, relevance, intervention, share.argmax(-1), active, task or tasks[0], steps
@@ -363,9 +391,9 @@ def apply_feedback(
     # The skill the CL core proposed for this interaction: the culprit rule, whatever the outcome (a failure with a
     # corrective demonstration verifies it, `_attribute`). Charging every candidate instead would retire each
     # broadly relevant skill for failures it barely touched.
-    proposed = culprit_skill(relevance, cfg.fail_context_steps)
+    proposed = culprit_skill(relevance, FAIL_CONTEXT_STEPS)
     frames = _demo_frames(policy, demonstration) if demonstration is not None else None
-    k = cfg.fail_context_steps
+    k = FAIL_CONTEXT_STEPS
     attribution = _attribute(policy, frames if failed else None, candidate[-k:].any(0), proposed)
     proposed = attribution["culprit"]
     kvm.metabolism.record(attempt.task, torch.arange(n_skills, device=device) == proposed, failed, intervention.any(0))
@@ -399,7 +427,7 @@ class _Failure:
     context: Tensor  # [T] bool: the attempt's failure context
     hypothesis_id: int
     permanent: bool  # the hypothesis is confirmed: its negatives are permanent
-    experience: ExperienceViews  # the culprit's
+    experience: SafeExperience  # the culprit's
     negatives: list[Tensor]  # contexts that become h_fail negatives for the culprit
     positives: list[tuple[Tensor, Tensor]] = field(default_factory=list)  # (contexts, skills) learned safe
     demo_skill: int | None = None
@@ -409,7 +437,7 @@ class _Failure:
 
 
 def _learn_from_failure(
-    policy: "CodaKvmPolicy",
+    policy: FeedbackPolicy,
     attempt: _Attempt,
     attribution: dict[str, Any],
     frames: dict[str, Any] | None,
@@ -422,15 +450,13 @@ def _learn_from_failure(
     c_raw = attempt.c_raw
     culprit = attribution["culprit"]
     context = attempt.opened.clone()
-    context[-cfg.fail_context_steps :] = True
+    context[-FAIL_CONTEXT_STEPS:] = True
     experience = kvm.safe_experience(culprit)
-    context &= ~experience.known(c_raw, cfg.known_safe_quantile)
-    if cfg.fail_context_last:
-        context[-cfg.fail_context_last :] = True
+    context &= ~experience.known(c_raw, KNOWN_SAFE_QUANTILE)
     context |= experience.departed(c_raw, cfg.departure_radius)
     hypothesis_id = None
     for h in kvm.hypotheses.ids(skill=culprit):
-        if bool(_similar(kvm, attempt.mu[context], h).any()):
+        if bool(kvm.similar_to_hypothesis(attempt.mu[context], h).any()):
             hypothesis_id = h
             break
     suppressed = bool(attempt.intervention[context, culprit].any())
@@ -470,7 +496,7 @@ def _learn_from_failure(
 
 
 def _learn_from_demonstration(
-    policy: "CodaKvmPolicy",
+    policy: FeedbackPolicy,
     attempt: _Attempt,
     failure: _Failure,
     attribution: dict[str, Any],
@@ -501,7 +527,7 @@ def _learn_from_demonstration(
     elif attribution["agrees"] is not None and bool(active[attribution["agrees"]]):
         failure.demo_skill = attribution["agrees"]
     else:
-        failure.demo_skill = _demo_skill(d_rel, culprit, active)
+        failure.demo_skill = demonstrated_skill(d_rel, culprit, active)
     if failure.demo_skill is not None:
         # The demonstrated strategy is the one meant for the contexts the culprit failed in: they are safe for it
         # (for a new gap skill, the whole failed attempt). Otherwise those contexts would be hazardous for the
@@ -511,7 +537,7 @@ def _learn_from_demonstration(
         kvm.add_safe(seen, skills, routine=False, demo=True)
         failure.positives.append((seen, skills.to(device)))
     experience = failure.experience
-    unknown = ~experience.known(d_raw, cfg.known_safe_quantile) | experience.departed(d_raw, cfg.departure_radius)
+    unknown = ~experience.known(d_raw, KNOWN_SAFE_QUANTILE) | experience.departed(d_raw, cfg.departure_radius)
     failure.demo_negative_steps = _steps(unknown)
     if bool(unknown.any()):
         n = int(unknown.sum())
@@ -520,7 +546,7 @@ def _learn_from_demonstration(
 
 
 def _learn_from_success(
-    policy: "CodaKvmPolicy", attempt: _Attempt, trace: KvmTrace, demonstration: dict[str, Any] | None
+    policy: FeedbackPolicy, attempt: _Attempt, trace: KvmTrace, demonstration: dict[str, Any] | None
 ) -> dict[str, Any]:
     """A success: safe samples for the dominant skill; interventions near an open hypothesis count for it, and a
     confirmation with a knowledge gap creates a new skill seeded from this interaction."""
@@ -536,7 +562,7 @@ def _learn_from_success(
         if i >= policy.n_skills or not bool(intervention[:, i].any()):
             continue
         steps_i = torch.nonzero(intervention[:, i]).flatten()
-        similar = _similar(kvm, attempt.mu[steps_i], h)
+        similar = kvm.similar_to_hypothesis(attempt.mu[steps_i], h)
         if not bool(similar.any()):
             continue
         matched = steps_i[similar]
@@ -561,22 +587,12 @@ def _learn_from_success(
     return report
 
 
-def skill_by_name(policy: "CodaKvmPolicy", name: str | None) -> int | None:
+def skill_by_name(policy: FeedbackPolicy, name: str | None) -> int | None:
     """The pool's skill a demonstration names, if it has one by that name."""
     return next((s.index for s in policy.skills if s.name == name), None) if name is not None else None
 
 
-def _demo_skill(relevance: Tensor, culprit: int, active: Tensor) -> int | None:
-    """The policy skill an unnamed demonstration shows: the most relevant active alternative to the culprit."""
-    alternatives = active.clone()
-    alternatives[culprit] = False
-    if not bool(alternatives.any()):
-        return None
-    mean = relevance.mean(0).masked_fill(~alternatives, float("-inf"))
-    return int(mean.argmax())
-
-
-def _new_skill_name(policy: "CodaKvmPolicy") -> str:
+def _new_skill_name(policy: FeedbackPolicy) -> str:
     names = {s.name for s in policy.skills}
     n = policy.n_skills
     while f"kvm_skill_{n}" in names:
@@ -584,21 +600,21 @@ def _new_skill_name(policy: "CodaKvmPolicy") -> str:
     return f"kvm_skill_{n}"
 
 
-def _begin_gap_skill(policy: "CodaKvmPolicy", hypothesis_id: int, culprit: int, task: str) -> int:
+def _begin_gap_skill(policy: FeedbackPolicy, hypothesis_id: int, culprit: int, task: str) -> int:
     """A new skill that corrects the culprit (see `fusion.correction_validity`): out of force where the gate is
     closed, so the contexts where the culprit is still right (inside the safe experience) keep their prompt.
-    It starts as a copy of the culprit (`kvm.gap_init`)."""
+    It starts as a copy of the culprit: the safe strategy is mostly a variation of the obsolete one, and the
+    backbone knows that prompt."""
     name = _new_skill_name(policy)
     description = f"created by the KVM: '{policy.skills[culprit].name}' risky on '{task}'"
     index = policy.begin_new_skill(name, description, corrects=culprit)
-    if policy.config.kvm.gap_init == "culprit":
-        policy.pool.copy_skill(culprit, index)
+    policy.pool.copy_skill(culprit, index)
     policy.kvm.hypotheses.mark_gap(hypothesis_id, index)
     return index
 
 
 def _gap_skill(
-    policy: "CodaKvmPolicy", hypothesis_id: int, culprit: int, relevance: Tensor, active: Tensor, task: str
+    policy: FeedbackPolicy, hypothesis_id: int, culprit: int, relevance: Tensor, active: Tensor, task: str
 ) -> dict[str, Any] | None:
     """The skill a failure's corrective demonstration seeds. A gap skill already made for this hypothesis, or
     a blamed correction of the skill the task relies on, is refined (never replaced by another). Otherwise a
@@ -624,21 +640,18 @@ def _gap_skill(
     return {"created": True, "index": index, "name": policy.skills[index].name}
 
 
-def _focus(policy: "CodaKvmPolicy", index: int, frames: dict[str, Any], query: Tensor, steps: int) -> dict[str, Any]:
+def _focus(policy: FeedbackPolicy, index: int, frames: dict[str, Any], query: Tensor, steps: int) -> dict[str, Any]:
     """`steps` of focused fine-tuning of a new skill on its seed frames; its keys are pushed away from every
     other query the KVM has seen safe."""
-    cfg = policy.config.kvm
     kvm = policy.kvm
     known = kvm.safe_offline.data[kvm.safe_offline.filled()][:, kvm.encoder.sensed_dim :] / kvm.encoder.query_scale
     other = known[(F.normalize(known, dim=-1) @ query.T).amax(-1) < 0.999] if len(known) else known
-    focused = focused_finetune(
-        policy, frames, index, steps, cfg.focused_lr, cfg.focused_key_weight, torch.unique(other, dim=0)
-    )
+    focused = focused_finetune(policy, frames, index, steps, FOCUSED_LR, FOCUSED_KEY_WEIGHT, torch.unique(other, dim=0))
     return {"seed_frames": frames[ACTION].shape[0], "seed_tasks": sorted(set(frames["task"])), **focused}
 
 
 def _create_skill(
-    policy: "CodaKvmPolicy",
+    policy: FeedbackPolicy,
     hypothesis_id: int,
     culprit: int,
     task: str,
@@ -656,7 +669,7 @@ def _create_skill(
     if demonstration is not None:
         parts.append(_demo_frames(policy, demonstration))
     if not parts:
-        return {"created": False, "reason": "no seed observations (trace_observations=False and no demonstration)"}
+        return {"created": False, "reason": "no seed observations (a batched trace and no demonstration)"}
     frames = _cat_frames(parts)
     index = _begin_gap_skill(policy, hypothesis_id, culprit, task)
     device = policy.query_fingerprint.device

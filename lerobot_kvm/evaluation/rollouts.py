@@ -12,8 +12,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .online import make_demonstration
-from .telemetry import KvmTrace
+from ..kvm.telemetry import KvmTrace
+from ..policy.feedback import make_demonstration
 
 Processor = Callable[[dict[str, Any]], Any]
 
@@ -151,8 +151,8 @@ def gate_rate(policy: Any, demos: Sequence[dict[str, Any]]) -> float:
     kvm = policy.kvm
     for demo in demos:
         c_raw = kvm.raw_context(demo[policy.config.context_key], policy.encode_query(demo["task"]))
-        mu, sigma2, _ = kvm.encode(c_raw)
-        opened += int(kvm.gate_open(mu, sigma2).sum())
+        _, sigma2, _ = kvm.encode(c_raw)
+        opened += int(kvm.gate_open(sigma2).sum())
         total += len(sigma2)
     return opened / max(total, 1)
 

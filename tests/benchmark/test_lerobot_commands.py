@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_kvm.cli import lerobot_commands
-from lerobot_kvm.cli.lerobot_commands import eval_command, program_name, run_logged, train_command
+from lerobot_kvm.benchmark import lerobot_commands
+from lerobot_kvm.benchmark.lerobot_commands import eval_command, program_name, run_logged, train_command
 
 
 def _flag(cmd: list[str], name: str) -> str:
@@ -93,7 +93,7 @@ def test_a_terminated_pipeline_stops_the_command_it_started(tmp_path):
     pipeline = (
         "import pathlib, sys\n"
         "from lerobot_kvm.cli.main import exit_on_sigterm\n"
-        "from lerobot_kvm.cli.lerobot_commands import run_logged\n"
+        "from lerobot_kvm.benchmark.lerobot_commands import run_logged\n"
         "exit_on_sigterm()\n"
         f"run_logged([sys.executable, '-c', {sleeper!r}], pathlib.Path({str(tmp_path / 'stage.log')!r}))\n"
     )

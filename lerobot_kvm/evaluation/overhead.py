@@ -15,9 +15,13 @@ rotations: a drift slower than one rotation cancels in them, where it only shift
 import statistics
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import torch
+
+from ..envs.env import KvmObsolescenceEnv
+from .rollouts import observation_batch, policy_processors, run_attempt
 
 MODES = ("off", "closed", "open")
 
@@ -113,3 +117,38 @@ def measure_overhead(
         "threads": torch.get_num_threads(),
         "device": str(device),
     }
+
+
+def observation_inputs(policy: Any, policy_path: Path, task: str, variant: str, seed: int) -> tuple[dict, str]:
+    """A real observation of the scenario through the checkpoint's preprocessor (random inputs without one)."""
+    if any(policy_path.glob("policy_preprocessor*.json")):
+        preprocessor, _ = policy_processors(policy, policy_path)
+        env = KvmObsolescenceEnv(task=task, variant=variant)
+        try:
+            obs, _ = env.reset(seed=seed)
+            return preprocessor(observation_batch(obs, env.task_description)), f"{task}/{variant} observation"
+        finally:
+            env.close()
+    gen = torch.Generator().manual_seed(seed)
+    batch = {k: torch.rand(1, *ft.shape, generator=gen) for k, ft in policy.config.input_features.items()}
+    batch["task"] = ["pick up the object"]
+    return {k: v.to(policy.config.device) if hasattr(v, "to") else v for k, v in batch.items()}, "random inputs"
+
+
+def give_failures(policy: Any, policy_path: Path, scenarios: list[str], seed: int) -> list[dict]:
+    """One attempt of the policy on each scenario's shifted variant, its outcome given back through the feedback
+    API, as in deployment: a failed attempt puts its contexts in the KVM's failure memory, so that the gate-open
+    step is timed with the nearest-neighbour risk model searching them (a skill without failures has none)."""
+    if not any(policy_path.glob("policy_preprocessor*.json")):
+        raise FileNotFoundError(f"--failures runs the policy in the scenarios: {policy_path} has no processors")
+    pre, post = policy_processors(policy, policy_path)
+    given = []
+    for scenario in scenarios:
+        env = KvmObsolescenceEnv(task=scenario, variant="shifted")
+        try:
+            attempt = run_attempt(policy, env, pre, post, seed=seed)
+        finally:
+            env.close()
+        policy.kvm_feedback(attempt["outcome"], attempt["trace"])
+        given.append({"scenario": scenario, "outcome": attempt["outcome"], "steps": attempt["steps"]})
+    return given

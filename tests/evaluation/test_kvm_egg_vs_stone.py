@@ -10,7 +10,7 @@ failure is blamed on the skill the core relied on; the KVM from the same frames'
 import pytest
 import torch
 
-from lerobot_kvm.kvm.validity_check import check_validity, divergence_step, neighbour_risk
+from lerobot_kvm.evaluation.validity_check import check_validity, divergence_step, neighbour_risk
 
 pytestmark = pytest.mark.slow
 

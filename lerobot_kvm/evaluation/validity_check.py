@@ -47,11 +47,12 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from ..datasets.recorder import RecordingSpec, RecordItem, load_labels, record_dataset
+from ..datasets.labels import load_labels
+from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
 from ..envs.env import KvmObsolescenceEnv
 from ..envs.scenario import SCENARIOS
-from .configuration import KvmConfig
-from .evaluation import (
+from ..kvm.configuration import KvmConfig
+from .rollouts import (
     auroc,
     context_validity,
     expert_rollout,
@@ -148,10 +149,8 @@ def _offline_histories(data: dict[str, Any], where: Tensor) -> Tensor:
     return out[where]
 
 
-def _rollouts(
-    scenario_id: str, variant: str, skill: str, preprocessor: Any, seeds: list[int], context_lags: tuple[int, ...]
-) -> list[dict]:
-    env = KvmObsolescenceEnv(scenario_id, variant=variant, context_lags=context_lags)
+def _rollouts(scenario_id: str, variant: str, skill: str, preprocessor: Any, seeds: list[int]) -> list[dict]:
+    env = KvmObsolescenceEnv(scenario_id, variant=variant)
     demos = [expert_rollout(env, skill, preprocessor, seed=s)[0] for s in seeds]
     env.close()
     return demos
@@ -172,7 +171,6 @@ def _learn_prior_variant(
     seed: int,
     offline_steps: tuple[int, int],
     options: dict[str, Any],
-    context_lags: tuple[int, ...],
     workdir: str | Path | None,
 ) -> tuple[Any, Any, dict[str, Any], Tensor]:
     """Protocol steps 1-2: record the prior variant's expert episodes of both skills and train a small policy on
@@ -189,7 +187,6 @@ def _learn_prior_variant(
                 RecordItem(scenario_id, "prior", info.safe_skill, episodes, "skill"),
             ],
             seed=seed,
-            context_lags=list(context_lags),
         )
         record_dataset(spec, root, repo_id=repo_id, progress=False)
         policy = _small_policy(root, repo_id, info.prior_skill, options)
@@ -211,14 +208,12 @@ def _learn_prior_variant(
     return policy, pre, data, is_prior
 
 
-def _one_failure(
-    policy: Any, pre: Any, scenario_id: str, base: int, feedback_steps: int, context_lags: tuple[int, ...]
-) -> dict[str, Any]:
+def _one_failure(policy: Any, pre: Any, scenario_id: str, base: int, feedback_steps: int) -> dict[str, Any]:
     """Protocol step 3: the prior skill's expert fails on the shifted variant, and the feedback gets its trace and
     the safe skill's corrective demonstration. Also where the shift shows in each (`shift_step` against the prior
     variant under the same seeds), and how well the feedback labelled the shifted steps."""
     info = SCENARIOS[scenario_id].info
-    env = KvmObsolescenceEnv(scenario_id, variant="shifted", context_lags=context_lags)
+    env = KvmObsolescenceEnv(scenario_id, variant="shifted")
     failed, failed_outcome = expert_rollout(env, info.prior_skill, pre, seed=base)
     corrective, corrective_outcome = expert_rollout(
         env, info.safe_skill, pre, seed=base + 1, policy_skill=info.safe_skill
@@ -227,8 +222,8 @@ def _one_failure(
     report = policy.kvm_feedback(
         failed_outcome, trace_from_demonstration(failed), demonstration=corrective, gradient_steps=feedback_steps
     )
-    twins = _rollouts(scenario_id, "prior", info.prior_skill, pre, [base], context_lags) + _rollouts(
-        scenario_id, "prior", info.safe_skill, pre, [base + 1], context_lags
+    twins = _rollouts(scenario_id, "prior", info.prior_skill, pre, [base]) + _rollouts(
+        scenario_id, "prior", info.safe_skill, pre, [base + 1]
     )
     met_from = [shift_step(t, d) for t, d in zip(twins, (failed, corrective), strict=True)]
     recall, precision = labelling(
@@ -254,41 +249,28 @@ def check_validity(
     held_out: int = 4,
     seed: int = 0,
     offline_steps: tuple[int, int] = (300, 200),
-    online_encoder: str = KvmConfig.online_encoder,
     feedback_steps: int = KvmConfig.feedback_steps,
     risk_model: str = KvmConfig.risk_model,
-    neighbour_space: str = KvmConfig.neighbour_space,
-    context_lags: tuple[int, ...] = (),
-    fail_context_last: int = KvmConfig.fail_context_last,
     workdir: str | Path | None = None,
 ) -> dict[str, Any]:
     """One row of the validity report for `scenario_id` (see the module docstring for the protocol);
-    `feedback_steps` is the feedback's gradient budget, `risk_model`, `neighbour_space` and `fail_context_last`
-    the KVM's (`kvm.<name>`); `context_lags` the environment's (`env.context_lags`, read by the KVM as
-    `kvm.context_frames` = 1 + their number)."""
+    `feedback_steps` is the feedback's gradient budget, `risk_model` the KVM's (`kvm.risk_model`)."""
     info = SCENARIOS[scenario_id].info
     torch.manual_seed(seed)
-    options = {
-        "online_encoder": online_encoder,
-        "risk_model": risk_model,
-        "neighbour_space": neighbour_space,
-        "context_frames": 1 + len(context_lags),
-        "fail_context_last": fail_context_last,
-    }
     policy, pre, data, is_prior = _learn_prior_variant(
-        scenario_id, episodes, seed, offline_steps, options, context_lags, workdir
+        scenario_id, episodes, seed, offline_steps, {"risk_model": risk_model}, workdir
     )
     base = seed + 10_000
-    failure = _one_failure(policy, pre, scenario_id, base, feedback_steps, context_lags)
+    failure = _one_failure(policy, pre, scenario_id, base, feedback_steps)
     failed, corrective = failure["failed"], failure["corrective"]
     report, met_from = failure["report"], failure["met_from"]
     met = _after([failed, corrective], met_from)
 
     seeds = [base + 100 + i for i in range(held_out)]
-    prior_prior = _rollouts(scenario_id, "prior", info.prior_skill, pre, seeds, context_lags)
-    prior_safe = _rollouts(scenario_id, "prior", info.safe_skill, pre, seeds, context_lags)
-    shifted_prior = _rollouts(scenario_id, "shifted", info.prior_skill, pre, seeds, context_lags)
-    shifted_safe = _rollouts(scenario_id, "shifted", info.safe_skill, pre, seeds, context_lags)
+    prior_prior = _rollouts(scenario_id, "prior", info.prior_skill, pre, seeds)
+    prior_safe = _rollouts(scenario_id, "prior", info.safe_skill, pre, seeds)
+    shifted_prior = _rollouts(scenario_id, "shifted", info.prior_skill, pre, seeds)
+    shifted_safe = _rollouts(scenario_id, "shifted", info.safe_skill, pre, seeds)
     start_prior = [shift_step(a, b) for a, b in zip(prior_prior, shifted_prior, strict=True)]
     start_safe = [shift_step(a, b) for a, b in zip(prior_safe, shifted_safe, strict=True)]
     own = _after(shifted_prior, start_prior)  # the prior skill's own shifted steps (none if it fails at contact)

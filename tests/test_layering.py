@@ -1,0 +1,78 @@
+"""The package's layers, `cli -> benchmark -> evaluation -> policy -> {kvm, envs, datasets}`, read from the source.
+
+Every import counts (module level, inside functions, under `TYPE_CHECKING`): an arrow that runs back up, or a cycle,
+makes a change in one layer reach into the layers it should not know. The suite's own modules (`envs`) are checked
+for upward arrows only.
+"""
+
+import ast
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "lerobot_kvm"
+RANK = {"cli": 4, "benchmark": 3, "evaluation": 2, "policy": 1, "kvm": 0, "envs": 0, "datasets": 0}
+SIBLINGS = {("datasets", "envs")}  # the recorder runs the suite
+
+
+def _name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _graph() -> dict[str, set[str]]:
+    """Module -> the project modules it imports (a `from m import x` naming a submodule x counts as m.x)."""
+    paths = {_name(p): p for p in PACKAGE.rglob("*.py")}
+
+    def resolve(name: str) -> str:
+        while name not in paths and "." in name:
+            name = name.rpartition(".")[0]
+        return name
+
+    graph: dict[str, set[str]] = {}
+    for module, path in paths.items():
+        package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+        found: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                found.update(a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                base = package.split(".")[: len(package.split(".")) - node.level + 1] if node.level else []
+                name = ".".join([*base, node.module] if node.module else base)
+                found.update(f"{name}.{a.name}" for a in node.names)
+        graph[module] = {resolve(n) for n in found if n.split(".")[0] == "lerobot_kvm"} - {module}
+    return graph
+
+
+def _layer(module: str) -> str:
+    return module.split(".")[1] if module.count(".") else ""
+
+
+def test_no_layer_imports_upwards_and_kvm_imports_nothing_of_the_project() -> None:
+    wrong = []
+    for module, targets in _graph().items():
+        for target in targets:
+            a, b = _layer(module), _layer(target)
+            if a == b or a not in RANK:  # within a layer, or the package's own `__init__` (plugin registration)
+                continue
+            if a == "kvm" or RANK[b] > RANK[a] or (RANK[b] == RANK[a] and (a, b) not in SIBLINGS):
+                wrong.append(f"{module} -> {target}")
+    assert not wrong
+
+
+def test_no_import_cycles_outside_the_suite() -> None:
+    graph = {m: t for m, t in _graph().items() if _layer(m) != "envs"}
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+    cycles = []
+
+    def visit(module: str, path: list[str]) -> None:
+        state[module] = 1
+        for target in sorted(graph.get(module, ())):
+            if state.get(target) == 1:
+                cycles.append(path[path.index(target) :] + [target])
+            elif target in graph and target not in state:
+                visit(target, [*path, target])
+        state[module] = 2
+
+    for module in sorted(graph):
+        if module not in state:
+            visit(module, [module])
+    assert not cycles
