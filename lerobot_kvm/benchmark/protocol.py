@@ -4,14 +4,16 @@
    `lerobot-train`: `coda_kvm` stage by stage, ACT as its own method. Its metrics are part of the results.
 2. **Challenge.** For each method, run r = 1..R (the pretrained checkpoint loaded afresh, its own seeds) and pass
    p = 1..P (what a method learns is kept across passes), each scenario in turn: attempt 1 on the shifted variant;
-   after a failure the feedback, then attempt 2 under the same seed. The feedback is the same information for
-   every method: the failed attempt's trace, one corrective demonstration (the safe skill's scripted expert on the
-   shifted variant, another seed) and `feedback_steps` gradient steps. `coda_kvm` and its ablations spend it in
-   the KVM's feedback API; the baselines (the CODA core with the KVM off, ACT) fine-tune their trainable
-   parameters on the demonstration. Every other attempt of a validity method reports its outcome to the feedback
-   API without gradient steps (the metabolism and the hypotheses count all interactions).
+   after a failure the feedback, then attempt 2 on a new episode of the same variant (its own seed, so that
+   remembering attempt 1's initial state does not help). The feedback is the same information for every method:
+   the failed attempt's trace, one corrective demonstration (the safe skill's scripted expert on the shifted
+   variant, another seed) and `feedback_steps` gradient steps. `coda_kvm` and its ablations spend it in the KVM's
+   feedback API; the baselines (the CODA core with the KVM off, ACT) fine-tune their trainable parameters on the
+   demonstration. A validity method's successful attempts report their outcome to the feedback API without
+   gradient steps (the metabolism and the hypotheses count the challenge's interactions).
 3. **Controls**, interleaved after every challenge: the scenario's prior variant (the old skill is still right)
-   and, where the scenario has one, its benign-novelty `control` variant.
+   and, where the scenario has one, its benign-novelty `control` variant. Controls are measurements: no method
+   learns from them (nothing is reported to the feedback API; no weight or memory changes).
 4. **Validity probes** before each first attempt (validity methods): v and E of the scenario's prior skill along
    the scripted experts' shifted-variant contexts (from the step the shift shows: hazardous) and along the prior
    skill's expert on the prior variant (safe), same seed. The prior skill's shifted expert's catastrophe step is
@@ -98,6 +100,10 @@ class BenchmarkConfig:
     @classmethod
     def from_json(cls, path: str | Path) -> "BenchmarkConfig":
         return cls(**read_config(cls, path))
+
+
+# An episode's role within one scenario of one pass: its seed is `episode_seed(...) + offset`.
+SEED_OFFSETS = {"attempt_1": 0, "demonstration": 1, "prior": 2, "control": 3, "attempt_2": 4}
 
 
 def episode_seed(base: int, run: int, pass_: int, index: int, offset: int = 0) -> int:
@@ -322,7 +328,7 @@ class Benchmark:
                 }
                 seed = episode_seed(cfg.seed, run, pass_, i)
                 self._challenge(method, policy, pre, post, base, seed, out)
-                self._controls(method, policy, pre, post, base, seed, out)
+                self._controls(policy, pre, post, base, seed, out)
                 if bar is not None:
                     bar.update()
             out["wall_time_s"] += time.time() - started
@@ -381,13 +387,15 @@ class Benchmark:
             if first["outcome"] == "success":
                 out["records"][-1]["pruned"] = self._report(method, policy, first)
                 return
-            demo, demo_outcome = expert_rollout(env, info.safe_skill, pre, seed=seed + 1)
+            demo, demo_outcome = expert_rollout(env, info.safe_skill, pre, seed=seed + SEED_OFFSETS["demonstration"])
             out["feedback"].append(
                 {**base, "demonstration": demo_outcome, **self._feedback(method, policy, first, demo)}
             )
-            second = run_attempt(policy, env, pre, post, seed=seed)
+            second_seed = seed + SEED_OFFSETS["attempt_2"]
+            second = run_attempt(policy, env, pre, post, seed=second_seed)
             out["records"].append(
-                {**challenge, "attempt": 2, "reference_catastrophe_step": None} | episode_fields(second)
+                {**challenge, "attempt": 2, "seed": second_seed, "reference_catastrophe_step": None}
+                | episode_fields(second)
             )
             out["records"][-1]["pruned"] = self._report(method, policy, second)
         finally:
@@ -422,21 +430,22 @@ class Benchmark:
         v_s, e_s = prior_skill_scores(policy, [rollouts["prior", info.prior_skill]], skill)
         return {**base, "v_hazard": v_h, "e_hazard": e_h, "v_safe": v_s, "e_safe": e_s}
 
-    def _controls(
-        self, method: str, policy: Any, pre: Any, post: Any, base: dict[str, Any], seed: int, out: dict[str, Any]
-    ) -> None:
-        """The interleaved prior-variant and benign-novelty episodes of the scenario (where it has the variant)."""
+    def _controls(self, policy: Any, pre: Any, post: Any, base: dict[str, Any], seed: int, out: dict[str, Any]) -> None:
+        """The interleaved prior-variant and benign-novelty episodes of the scenario (where it has the variant).
+
+        Measurements only: nothing is reported to the feedback API, so no method learns from a control."""
         variants = SCENARIOS[base["scenario"]].info.variants
-        for offset, kind in enumerate(self.config.controls, start=2):
+        for kind in self.config.controls:
             if kind not in variants:
                 continue
             env = self._env(base["scenario"], kind)
             try:
-                result = run_attempt(policy, env, pre, post, seed=seed + offset)
+                result = run_attempt(policy, env, pre, post, seed=seed + SEED_OFFSETS[kind])
             finally:
                 env.close()
-            out["records"].append({**base, "kind": kind, "attempt": 1, "seed": seed + offset} | episode_fields(result))
-            out["records"][-1]["pruned"] = self._report(method, policy, result)
+            policy.reset()  # the control's trace is not kept for any later feedback
+            record = {**base, "kind": kind, "attempt": 1, "seed": seed + SEED_OFFSETS[kind]}
+            out["records"].append(record | episode_fields(result) | {"pruned": []})
 
     def _feedback(self, method: str, policy: Any, attempt: dict[str, Any], demo: dict[str, Any]) -> dict[str, Any]:
         """Spend the feedback budget after a failed first attempt; a short JSON-friendly report."""

@@ -10,6 +10,7 @@ from lerobot_kvm.benchmark.continual import ContinualRun, SequenceConfig
 from lerobot_kvm.benchmark.protocol import (
     KVM_METHODS,
     PEER_METHODS,
+    SEED_OFFSETS,
     Benchmark,
     BenchmarkConfig,
     episode_fields,
@@ -49,8 +50,10 @@ def test_bad_benchmark_configs_are_rejected_with_the_offending_value(change, mes
 
 
 def test_episode_seeds_are_distinct_per_role_and_far_from_recording_and_cl_seeds():
-    seeds = {episode_seed(0, r, p, i, o) for r in range(5) for p in (1, 2, 3) for i in range(18) for o in range(4)}
-    assert len(seeds) == 5 * 3 * 18 * 4
+    offsets = SEED_OFFSETS.values()
+    seeds = {episode_seed(0, r, p, i, o) for r in range(5) for p in (1, 2, 3) for i in range(18) for o in offsets}
+    assert len(seeds) == 5 * 3 * 18 * len(SEED_OFFSETS)
+    assert SEED_OFFSETS["attempt_2"] not in (SEED_OFFSETS["attempt_1"], SEED_OFFSETS["prior"], SEED_OFFSETS["control"])
     assert min(seeds) > 100_000 + 10_000
 
 
@@ -139,8 +142,16 @@ def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
     assert ("chip_bag", "control") in kinds and ("egg_vs_stone", "prior") in kinds
     assert ("egg_vs_stone", "control") not in kinds  # a scenario without a benign variant has no such control
     assert all(r["series"] is not None for r in run["records"])
-    reported = [r for r in run["records"] if r["kind"] != "challenge" or r["attempt"] == 2 or r["outcome"] == "success"]
-    assert reported and all(isinstance(r["pruned"], list) for r in reported)  # the metabolism's pruning is kept
+    challenge = [r for r in run["records"] if r["kind"] == "challenge"]
+    reported = [r for r in challenge if r["attempt"] == 2 or r["outcome"] == "success"]
+    assert all(isinstance(r["pruned"], list) for r in reported)  # the metabolism's pruning is kept
+    assert all(r["pruned"] == [] for r in run["records"] if r["kind"] != "challenge")  # controls teach nothing
+    seeds = {(r["pass"], r["scenario"], r["kind"], r["attempt"]): r["seed"] for r in run["records"]}
+    for (pass_, scenario, kind, attempt), seed in seeds.items():
+        if kind == "challenge" and attempt == 2:  # a new episode of the shifted variant, not a replay
+            assert seed != seeds[pass_, scenario, "challenge", 1]
+    assert len(set(seeds.values())) == len(seeds)
+    assert "Differences from `coda_kvm`" in (out / "report.md").read_text()
     act_run = json.loads((out / "episodes" / "act" / "run_0.json").read_text())
     assert all(r["series"] is None for r in act_run["records"])
     failed_first = [r for r in act_run["records"] if r["kind"] == "challenge" and r["attempt"] == 1]
@@ -183,10 +194,10 @@ def test_an_interrupted_run_resumes_at_its_next_pass_with_the_result_of_an_unint
     checkpoints = {"kvm": pool.final_checkpoint("coda_kvm"), "act": pool.final_checkpoint("act_joint")}
     controls = Benchmark._controls
 
-    def interrupted_in_pass_2(self, method, policy, pre, post, base, seed, out) -> None:
+    def interrupted_in_pass_2(self, policy, pre, post, base, seed, out) -> None:
         if base["pass"] == 2:
             raise KeyboardInterrupt
-        controls(self, method, policy, pre, post, base, seed, out)
+        controls(self, policy, pre, post, base, seed, out)
 
     def summary(run: dict) -> list[tuple]:
         return [(r["pass"], r["kind"], r["attempt"], r["outcome"], r["steps"]) for r in run["records"]]
@@ -203,6 +214,30 @@ def test_an_interrupted_run_resumes_at_its_next_pass_with_the_result_of_an_unint
         assert {r["pass"] for r in again["records"]} == {1, 2}
         assert summary(again) == summary(reference), method
         assert len(again["feedback"]) == len(reference["feedback"])
+
+
+@pytest.mark.slow
+def test_controls_change_no_weight_or_memory_of_any_method(tiny_pool, tmp_path) -> None:
+    config = BenchmarkConfig(
+        name="tiny",
+        sequence=str(CONFIGS / "cl_tiny.json"),
+        scenarios=["chip_bag"],  # it has both a prior and a benign control variant
+        dataset_root=str(tiny_pool["data"]),
+    )
+    bench = Benchmark(config, tmp_path, progress=False)
+    pool = ContinualRun(bench.sequence, tiny_pool["out"])
+    checkpoints = {"kvm": pool.final_checkpoint("coda_kvm"), "act": pool.final_checkpoint("act_joint")}
+    base = {"method": "", "run": 0, "pass": 1, "scenario": "chip_bag", "category": "B"}
+    for method in (*KVM_METHODS, "act"):
+        policy, pre, post = load_policy(method, checkpoints["kvm" if method in KVM_METHODS else "act"])
+        before = {k: v.clone() for k, v in policy.state_dict().items()}
+        out = {"records": []}
+        bench._controls(policy, pre, post, base | {"method": method}, episode_seed(0, 0, 1, 0), out)
+        assert [r["kind"] for r in out["records"]] == ["prior", "control"], method
+        after = policy.state_dict()
+        assert after.keys() == before.keys(), method
+        changed = [k for k in before if not before[k].equal(after[k])]
+        assert not changed, (method, changed[:5])
 
 
 @pytest.mark.slow
