@@ -127,17 +127,64 @@ def _run_episode(env: KvmObsolescenceEnv, skill: str, seed: int) -> tuple[list[d
     return frames, outcome
 
 
+def checked_root(root: str | Path, overwrite: bool) -> Path:
+    """The absolute dataset root, refused before anything is written unless recording into it loses nothing.
+
+    A new root is fine. An existing one is replaced only with `overwrite`, and only when this recorder made it
+    (its labels file is the marker); never `/`, the home directory, the working directory or one of its parents.
+    """
+    path = Path(root).expanduser().resolve()
+    cwd = Path.cwd().resolve()
+    if path == Path(path.anchor) or path == Path.home().resolve() or cwd.is_relative_to(path):
+        raise ValueError(f"dataset root {root!r} is {path}: refusing to record over a directory holding this one")
+    if not path.exists():
+        return path
+    if not overwrite:
+        raise FileExistsError(f"dataset root {path} already exists (pass --overwrite to replace a recorded dataset)")
+    if not path.is_dir() or not (path / LABELS_FILE).is_file():
+        raise FileExistsError(
+            f"dataset root {path} exists and was not recorded by lerobot-kvm record (no {LABELS_FILE}): "
+            "--overwrite replaces only a dataset this tool recorded"
+        )
+    return path
+
+
+def _temporary(root: Path, pid: int) -> Path:
+    """Where a recording into `root` is written before it moves into place: beside `root`, never inside it."""
+    return root.parent / f".{root.name}.tmp-{pid}"
+
+
+def remove_stale_temporaries(root: Path) -> list[Path]:
+    """Remove the temporary roots that killed recordings into `root` left behind (their process is gone)."""
+    removed = []
+    for tmp in root.parent.glob(f".{root.name}.tmp-*"):
+        pid = tmp.name.rpartition("-")[2]
+        if tmp.is_dir() and pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(tmp, ignore_errors=True)
+            removed.append(tmp)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
 def record_dataset(
     spec: RecordingSpec, root: str | Path, repo_id: str | None = None, overwrite: bool = False, progress: bool = True
 ) -> dict:
     """Record `spec` into `root`; returns a summary (episodes and outcomes per item)."""
-    root = Path(root)
-    if root.exists() and not overwrite:
-        raise FileExistsError(f"dataset root {root} already exists (pass overwrite to replace it)")
+    root = checked_root(root, overwrite)
     repo_id = repo_id or f"local/{spec.name}"
     vocab = spec.vocab()
-    tmp = root.parent / f".{root.name}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
+    remove_stale_temporaries(root)
+    tmp = _temporary(root, os.getpid())
+    shutil.rmtree(tmp, ignore_errors=True)  # this process's own, from a recording it abandoned
     root.parent.mkdir(parents=True, exist_ok=True)
     summary: list[dict] = []
     episodes: list[dict] = []  # per kept episode: its labels, so trainers can map episode_index -> skill
