@@ -1,4 +1,4 @@
-"""`lerobot-kvm benchmark`: the knowledge-obsolescence challenge protocol (DESIGN §7).
+"""`lerobot-kvm benchmark`: the knowledge-obsolescence challenge protocol (docs/benchmark.md).
 
 1. **Pool.** A continual-learning sequence (`train-continual` config) grows the skill pool with the real
    `lerobot-train`: `coda_kvm` stage by stage, ACT as its own method. Its metrics are part of the results.

@@ -8,7 +8,7 @@ rotations: a drift slower than one rotation cancels in them, where it only shift
 * model call: one `predict_action_chunk` (query, CODA relevances, KVM assessment, fused prompt, backbone) --
   the unit the paper's overhead (App. H.2) is about; the acceptance ratios are taken here.
 * control step: one `select_action` averaged over a full action chunk (one model call per `n_action_steps`
-  steps, plus the KVM's per-step trace recording) -- what DESIGN's per-control-step targets are about; its paired
+  steps, plus the KVM's per-step trace recording) -- what the per-control-step overhead targets are about; its paired
   ratios are taken the same way, over the chunks timed in each rotation.
 """
 

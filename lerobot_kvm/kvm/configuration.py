@@ -67,7 +67,7 @@ class KvmConfig:
     feedback_batch: int = 512
     feedback_hard_safe_replay: int = 64  # the hard safe share (1/8) of a feedback batch (docs/measurements.md)
     # App. D failure context: the steps from which an attempt stays further than this multiple of the median
-    # spread of the culprit's safe experience until its end (docs/measurements.md, 2.0 vs 1.5); None: off.
+    # spread of the culprit's safe experience until its end (docs/measurements.md, departure rule); None: off.
     departure_radius: float | None = 2.0
     hypothesis_capacity: int = 64  # App. D: open and confirmed risk hypotheses kept
     tau_high: float = 0.8  # App. D, App. E: an intervention is necessary when normalised alpha_i > tau_high
@@ -78,7 +78,7 @@ class KvmConfig:
     gap_on_failure: bool = True
     focused_steps: int = 50  # App. D: focused gradient steps on a newly created skill only
 
-    # ------------------------------------------------------------------ telemetry (DESIGN §4.1: every decision)
+    # ------------------------------------------------------------------ telemetry (Algorithm 1: decisions observable)
     trace_capacity: int = 2000  # Algorithm 1's trace: control steps kept per attempt for the feedback
     assess_every_step: bool = False  # Algorithm 1 per step: assess every call and replan when a suppression starts
 
