@@ -113,7 +113,7 @@ def _run_episode(env: KvmObsolescenceEnv, skill: str, seed: int) -> tuple[list[d
     frames = []
     info: dict = {}
     for _ in range(env._max_episode_steps):
-        action = expert.act(env)
+        action = expert.act(env.physics)
         frames.append(
             {
                 "observation.images.front": obs["pixels"]["front"],

@@ -53,7 +53,7 @@ def scenario_panels(scenario_id: str, seed: int, size: int) -> list[tuple[np.nda
         panels.append((env.render(), f"“{env.task_description}”"))
         expert = env.scenario.expert(skill)
         while True:
-            _, _, terminated, truncated, info = env.step(expert.act(env))
+            _, _, terminated, truncated, info = env.step(expert.act(env.physics))
             if terminated or truncated:
                 break
         panels.append((env.render(), f"{_outcome(info)} after {env.step_count} steps"))

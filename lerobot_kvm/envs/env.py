@@ -7,6 +7,7 @@ import mujoco
 import numpy as np
 
 from . import scenarios  # noqa: F401  (registers the scenario classes)
+from .physics import Physics
 from .scenario import StepOutcome, check_variant, make_scenario
 from .scene import GRIPPER_HOME, build_scene_xml
 from .sensing import ACTION_NAMES, STATE_NAMES, ContextWindow, Sensors
@@ -65,6 +66,7 @@ class KvmObsolescenceEnv(gym.Env):
                 raise ValueError(f"unknown camera {cam!r}")
         self.n_substeps = max(1, round(1.0 / (fps * self.model.opt.timestep)))
         self.sensors = Sensors(self.model)
+        self.physics = Physics(self.model, self.data, self.sensors)  # what the scenario's hooks and experts see
         self.context_window = ContextWindow(context_lags)
         self._renderer: mujoco.Renderer | None = None
         self._video_renderer: mujoco.Renderer | None = None
@@ -122,7 +124,7 @@ class KvmObsolescenceEnv(gym.Env):
         mujoco.mj_step(self.model, self.data, nstep=self.n_substeps)
         self.step_count += 1
 
-        self.outcome = self.scenario.evaluate(self)
+        self.outcome = self.scenario.evaluate(self.physics)
         terminated = self.outcome.success or self.outcome.catastrophe is not None
         truncated = not terminated and self.step_count >= self._max_episode_steps
         reward = float(self.outcome.success) - float(self.outcome.catastrophe is not None)  # 1 / -1 / 0

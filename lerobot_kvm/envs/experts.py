@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from .physics import Physics
 from .scenario import Expert
 
 HAND_TO_FINGER_CENTRE = 0.035  # finger centre below the hand origin
@@ -43,10 +44,10 @@ class GraspLiftExpert(Expert):
         self.anchor = np.zeros(3)
         self.base = 0.0  # hand height when the object was grasped
 
-    def act(self, env) -> np.ndarray:
-        obj = env.data.body(self.body).xpos
-        pos = env.sensors.arm_position(env.data)
-        touch = env.sensors.touch(env.data)
+    def act(self, physics: Physics) -> np.ndarray:
+        obj = physics.data.body(self.body).xpos
+        pos = physics.sensors.arm_position(physics.data)
+        touch = physics.sensors.touch(physics.data)
         centre = obj[2] if self.grasp_height is None else self.grasp_height
         grasp_z = max(centre + HAND_TO_FINGER_CENTRE, FINGER_HALF_HEIGHT * 2 + 0.006)
         hover_z = grasp_z + 0.06
@@ -72,11 +73,11 @@ class GraspLiftExpert(Expert):
                 self.phase, self.base = "lift", self.anchor[2]
         else:  # holding the object
             grip = self.grip
-            self.anchor = self.after_grasp(env, grasp_z)
+            self.anchor = self.after_grasp(physics, grasp_z)
             target = self.anchor
         return np.array([*target, 0.0, grip], dtype=np.float32)
 
-    def after_grasp(self, env, grasp_z: float) -> np.ndarray:
+    def after_grasp(self, physics: Physics, grasp_z: float) -> np.ndarray:
         """Next hand position while the object is held: rise, then hold."""
         step = self.liftoff_step if self.anchor[2] < self.base + self.liftoff else self.lift_step
         if self.top is None:

@@ -1,9 +1,26 @@
-"""Physics read-outs shared by scenarios (contact forces, body lookups)."""
+"""Physics read-outs shared by scenarios (contact forces, body lookups) and the view of the simulation they get."""
+
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
+from .sensing import Sensors
+
 _WRENCH = np.zeros(6)
+
+
+@dataclass(frozen=True)
+class Physics:
+    """What a scenario's hooks and its experts see of a running env: the simulation and the robot's sensors.
+
+    Handing hooks this view rather than the env keeps scenarios independent of the gym wrapper (no import of it,
+    no access to its episode bookkeeping), as in dm_control's `Task` hooks over `Physics`.
+    """
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    sensors: Sensors
 
 
 def geom_ids(model: mujoco.MjModel, *names: str) -> frozenset[int]:

@@ -6,15 +6,13 @@ The registry maps stable ids to scenario classes; `resolve_tasks` turns the CLI'
 
 import abc
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import mujoco
 import numpy as np
 
+from .physics import Physics
 from .scene import SceneParts
-
-if TYPE_CHECKING:
-    from .env import KvmObsolescenceEnv
 
 VARIANTS = ("prior", "shifted", "control")
 # What an episode asks for: the variant's own instruction, or the instruction naming the prior / safe skill.
@@ -70,7 +68,7 @@ class Expert(abc.ABC):
     """
 
     @abc.abstractmethod
-    def act(self, env: "KvmObsolescenceEnv") -> np.ndarray: ...
+    def act(self, physics: Physics) -> np.ndarray: ...
 
 
 class Scenario(abc.ABC):
@@ -85,7 +83,7 @@ class Scenario(abc.ABC):
         """Apply the variant's hidden parameters and randomised nuisance; called after mj_resetData."""
 
     @abc.abstractmethod
-    def evaluate(self, env: "KvmObsolescenceEnv") -> StepOutcome:
+    def evaluate(self, physics: Physics) -> StepOutcome:
         """Judge the current physics state: success and/or a catastrophe (which ends the episode)."""
 
     @abc.abstractmethod

@@ -52,7 +52,7 @@ def run_episode(env: KvmObsolescenceEnv, variant: str, skill: str, seed: int) ->
     expert = env.scenario.expert(skill)
     steps, seconds = 0, 0.0
     while True:
-        action = expert.act(env)
+        action = expert.act(env.physics)
         start = time.perf_counter()
         _, _, terminated, truncated, info = env.step(action)
         seconds += time.perf_counter() - start

@@ -12,7 +12,7 @@ def run(variant: str, skill: str, seed: int = 0) -> tuple[dict, list[float], Kvm
     expert = env.scenario.expert(skill)
     widths = []
     for _ in range(env._max_episode_steps):
-        _, _, terminated, truncated, info = env.step(expert.act(env))
+        _, _, terminated, truncated, info = env.step(expert.act(env.physics))
         widths.append(env.sensors.finger_width(env.data))
         if terminated or truncated:
             break

@@ -38,7 +38,7 @@ def test_the_environment_senses_its_context_window() -> None:
     assert np.array_equal(obs["context"], np.tile(frames[0], 3))
     expert = env.scenario.expert(env.scenario.info.prior_skill)
     for _ in range(3):
-        obs, *_ = env.step(expert.act(env))
+        obs, *_ = env.step(expert.act(env.physics))
         frames.append(obs["context"][:n])
     assert np.array_equal(obs["context"], np.concatenate([frames[3], frames[2], frames[1]]))
     obs, _ = env.reset(seed=0)  # a new episode starts a new window

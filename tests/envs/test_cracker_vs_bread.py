@@ -13,7 +13,7 @@ def run_expert(variant: str, skill: str, seed: int = 0):
     expert = env.scenario.expert(skill)
     stroke = []
     for _ in range(env._max_episode_steps):
-        obs, _, terminated, truncated, info = env.step(expert.act(env))
+        obs, _, terminated, truncated, info = env.step(expert.act(env.physics))
         if expert.phase == "stroke":
             stroke.append(obs["context"])
         if terminated or truncated:

@@ -19,7 +19,7 @@ def run_expert(variant: str, skill: str, seed: int = 0) -> tuple[dict, list[np.n
     contexts = [obs["context"]]
     first_contact = None
     for _ in range(env._max_episode_steps):
-        obs, _, terminated, truncated, info = env.step(expert.act(env))
+        obs, _, terminated, truncated, info = env.step(expert.act(env.physics))
         contexts.append(obs["context"])
         if first_contact is None and robot_touches_object(env):
             first_contact = len(contexts) - 1
@@ -108,7 +108,7 @@ def test_reward_is_one_on_success_and_minus_one_on_a_catastrophe(variant, reward
     expert = env.scenario.expert("firm_grasp")
     rewards = []
     for _ in range(env._max_episode_steps):
-        _, r, terminated, truncated, _ = env.step(expert.act(env))
+        _, r, terminated, truncated, _ = env.step(expert.act(env.physics))
         rewards.append(r)
         if terminated or truncated:
             break

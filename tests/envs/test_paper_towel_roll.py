@@ -12,7 +12,7 @@ def run_expert(variant: str, skill: str, seed: int = 0):
     obs, info = env.reset(seed=seed)
     expert = env.scenario.expert(skill)
     for _ in range(env._max_episode_steps):
-        obs, _, terminated, truncated, info = env.step(expert.act(env))
+        obs, _, terminated, truncated, info = env.step(expert.act(env.physics))
         if terminated or truncated:
             break
     return info, env, obs["agent_pos"]

@@ -14,7 +14,7 @@ def run(variant: str, skill: str, seed: int = 0) -> tuple[dict, np.ndarray, KvmO
     expert = env.scenario.expert(skill)
     contexts = [obs["context"]]
     for _ in range(env._max_episode_steps):
-        obs, _, terminated, truncated, info = env.step(expert.act(env))
+        obs, _, terminated, truncated, info = env.step(expert.act(env.physics))
         contexts.append(obs["context"])
         if terminated or truncated:
             break

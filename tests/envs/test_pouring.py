@@ -14,7 +14,7 @@ def run_expert(variant: str, skill: str, seed: int = 0):
     expert = env.scenario.expert(skill)
     force = [np.linalg.norm(obs["context"][:3])]
     for _ in range(env._max_episode_steps):
-        obs, _, terminated, truncated, info = env.step(expert.act(env))
+        obs, _, terminated, truncated, info = env.step(expert.act(env.physics))
         force.append(np.linalg.norm(obs["context"][:3]))
         if terminated or truncated:
             break

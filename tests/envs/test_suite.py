@@ -87,7 +87,7 @@ def run_until_contact(env: KvmObsolescenceEnv, variant: str, seed: int, actions:
     if holds_tool(env.model):
         return contexts, taken, 0
     for t in range(env._max_episode_steps):
-        action = expert.act(env) if actions is None else actions[t]
+        action = expert.act(env.physics) if actions is None else actions[t]
         taken.append(action)
         obs, _, terminated, truncated, _ = env.step(action)
         contexts.append(obs["context"])

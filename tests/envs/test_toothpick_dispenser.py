@@ -11,7 +11,7 @@ def run(variant: str, skill: str, seed: int = 0) -> tuple[dict, KvmObsolescenceE
     env.reset(seed=seed)
     expert = env.scenario.expert(skill)
     for _ in range(env._max_episode_steps):
-        _, _, terminated, truncated, info = env.step(expert.act(env))
+        _, _, terminated, truncated, info = env.step(expert.act(env.physics))
         if terminated or truncated:
             break
     return info, env

@@ -11,7 +11,7 @@ force of about its sliding friction (1-3 N).
 import mujoco
 import numpy as np
 
-from ..physics import contact_normal_force, geom_ids, set_free_body_pose
+from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
 from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -111,8 +111,8 @@ class Book(Scenario):
         xmat = data.xmat[self._bid]
         return float(np.arctan2(xmat[3], xmat[0]))
 
-    def evaluate(self, env) -> StepOutcome:
-        m, d = env.model, env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        m, d = physics.model, physics.data
         force = contact_normal_force(d, m, self._book, self._robot)
         self.peak_force = max(self.peak_force, force)
         self.dent = abs(float(d.plastic[self._plastic]))
@@ -146,10 +146,10 @@ class BookPushExpert(Expert):
         self.goal_x = 0.0
         self.timer = 0
 
-    def act(self, env) -> np.ndarray:
-        d = env.data
+    def act(self, physics: Physics) -> np.ndarray:
+        d = physics.data
         book = d.body("book").xpos
-        pos = env.sensors.arm_position(d)
+        pos = physics.sensors.arm_position(d)
         back = book[0] - HALF[0]
         self.timer += 1
         if self.target is None:
@@ -160,7 +160,7 @@ class BookPushExpert(Expert):
             if np.linalg.norm(start[:2] - self.target[:2]) > 0.01:
                 step[2] = max(step[2], 0.0)  # reach the spot behind the book before going down
             self.target = self.target + step
-            closed = env.sensors.finger_width(d) > 0.085
+            closed = physics.sensors.finger_width(d) > 0.085
             if np.linalg.norm(start - pos[:3]) < 0.004 and closed:
                 self.phase = "push"
                 self.goal_x = back - 0.015 + PUSH_DISTANCE + 0.005

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from ..experts import GraspLiftExpert
-from ..physics import contact_normal_force, geom_ids, set_free_body_pose
+from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
 from ..scenario import Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -134,13 +134,13 @@ class ChipBag(Scenario):
         self._held = 0
         self.max_chip_force = 0.0
 
-    def chip_forces(self, env) -> list[float]:
+    def chip_forces(self, physics: Physics) -> list[float]:
         """Normal force (N) that the bag's side walls press on each chip."""
-        return [contact_normal_force(env.data, env.model, chip, self._walls) for chip in self._chips]
+        return [contact_normal_force(physics.data, physics.model, chip, self._walls) for chip in self._chips]
 
-    def evaluate(self, env) -> StepOutcome:
-        m, d = env.model, env.data
-        forces = self.chip_forces(env)
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        m, d = physics.model, physics.data
+        forces = self.chip_forces(physics)
         self.max_chip_force = max(self.max_chip_force, *forces)
         if max(forces) > CHIP_BREAK:
             for g, f in zip(self._chip_gids, forces, strict=True):
@@ -148,7 +148,7 @@ class ChipBag(Scenario):
                     m.geom_rgba[g, :3] = [0.6, 0.45, 0.2]  # crumbs
             return StepOutcome(catastrophe="crush")
         lifted = d.xpos[self._bid][2] > LIFT_HEIGHT
-        held = env.sensors.touch(d).min() > 0.05
+        held = physics.sensors.touch(d).min() > 0.05
         self._held = self._held + 1 if (lifted and held) else 0
         return StepOutcome(success=self._held >= 5)
 

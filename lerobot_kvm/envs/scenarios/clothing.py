@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 
 from ..experts import GraspLiftExpert
-from ..physics import contact_normal_force, geom_ids, set_free_body_pose
+from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
 from ..scenario import Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -101,8 +101,8 @@ class Clothing(Scenario):
         xy = rng.uniform(-0.012, 0.012, 2) + [-0.06, 0.0]
         set_free_body_pose(model, data, "collar", [xy[0], xy[1], COLLAR[2]], yaw=rng.uniform(-0.12, 0.12))
 
-    def evaluate(self, env) -> StepOutcome:
-        m, d = env.model, env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        m, d = physics.model, physics.data
         collar_height = d.xpos[self._bids[0]][2] - COLLAR[2]
         gripped = contact_normal_force(d, m, self._collar, self._fingers) > 0.05
         if collar_height > AIRBORNE and gripped:
@@ -110,7 +110,7 @@ class Clothing(Scenario):
         if self._airborne and not gripped:
             return StepOutcome(catastrophe="drop")
         lowest = min(d.geom_xpos[g][2] for g in self._gids[1:]) - 0.03  # a hanging panel's lowest edge
-        held = lowest > CLEAR and env.sensors.touch(d).min() > 0.05
+        held = lowest > CLEAR and physics.sensors.touch(d).min() > 0.05
         self._held = self._held + 1 if held else 0
         return StepOutcome(success=self._held >= 5)
 

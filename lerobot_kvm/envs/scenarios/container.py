@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 
 from ..experts import GraspLiftExpert
-from ..physics import set_free_body_pose
+from ..physics import Physics, set_free_body_pose
 from ..scenario import Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -180,13 +180,13 @@ class Container(Scenario):
         )
         return int(outside.sum())
 
-    def evaluate(self, env) -> StepOutcome:
-        d = env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        d = physics.data
         self.spilled = self.count_spilled(d)
         if self.spilled >= SPILL_COUNT:
             return StepOutcome(catastrophe="spill")
         lifted = d.xpos[self._bid][2] > LIFT_HEIGHT
-        held = env.sensors.touch(d).min() > 0.05
+        held = physics.sensors.touch(d).min() > 0.05
         self._held = self._held + 1 if (lifted and held) else 0
         return StepOutcome(success=self._held >= 5)
 

@@ -11,7 +11,7 @@ works on both.
 import mujoco
 import numpy as np
 
-from ..physics import contact_normal_force, geom_ids, set_free_body_pose
+from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
 from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -103,8 +103,8 @@ class CrackerVsBread(Scenario):
         self.flattening = 0.0
         self.force = 0.0
 
-    def evaluate(self, env) -> StepOutcome:
-        m, d = env.model, env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        m, d = physics.model, physics.data
         self.flattening = abs(float(d.plastic[self._plastic]))
         if self.flattening > CRUSH:
             m.geom_rgba[m.geom("slice_face").id, :3] *= 0.85  # squashed, torn crumb
@@ -147,14 +147,14 @@ class SpreadExpert(Expert):
         self.contact_z = 0.0
         self.timer = 0
 
-    def _contact_force(self, env) -> float:
+    def _contact_force(self, physics: Physics) -> float:
         """Upward push on the tool, from the wrist force sensor relative to its free-air reading."""
-        return self.baseline - float(env.data.sensor("wrist_force").data[2])
+        return self.baseline - float(physics.data.sensor("wrist_force").data[2])
 
-    def act(self, env) -> np.ndarray:
-        d = env.data
+    def act(self, physics: Physics) -> np.ndarray:
+        d = physics.data
         slice_xy = d.body("slice").xpos[:2]
-        pos = env.sensors.arm_position(d)
+        pos = physics.sensors.arm_position(d)
         self.timer += 1
         if self.target is None:
             self.target = pos[:3].copy()
@@ -169,7 +169,7 @@ class SpreadExpert(Expert):
                 self.phase = "descend"
         elif self.phase == "descend":
             self.target[2] -= self.DESCEND
-            if self._contact_force(env) > 0.3:
+            if self._contact_force(physics) > 0.3:
                 self.contact_z = pos[2]
                 self.target[2] = pos[2]  # start pressing from where the tool met the surface
                 self.phase, self.timer = "press", 0

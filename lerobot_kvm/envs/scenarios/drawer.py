@@ -15,7 +15,7 @@ when effort rises without motion it stops, lifts the drawer front and pulls agai
 import mujoco
 import numpy as np
 
-from ..physics import geom_ids
+from ..physics import Physics, geom_ids
 from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -133,18 +133,18 @@ class Drawer(Scenario):
         self._strain = 0
         self.max_pull = 0.0
 
-    def knob_pull(self, env) -> float:
+    def knob_pull(self, physics: Physics) -> float:
         """Force (N) the robot pulls on the knob along the opening direction (+x)."""
-        return float(contact_force_world(env.model, env.data, self._fingers, self._knob)[0])
+        return float(contact_force_world(physics.model, physics.data, self._fingers, self._knob)[0])
 
-    def evaluate(self, env) -> StepOutcome:
-        pull = abs(self.knob_pull(env))
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        pull = abs(self.knob_pull(physics))
         self.max_pull = max(self.max_pull, pull)
         self._strain = self._strain + 1 if pull > DAMAGE_FORCE else 0
         if self._strain >= DAMAGE_STEPS:
-            env.model.geom_rgba[self._knob_gid, :3] = [0.9, 0.2, 0.15]  # splintered fixing
+            physics.model.geom_rgba[self._knob_gid, :3] = [0.9, 0.2, 0.15]  # splintered fixing
             return StepOutcome(catastrophe="damaging_force")
-        opened = env.data.qpos[self._jx.qposadr[0]]
+        opened = physics.data.qpos[self._jx.qposadr[0]]
         return StepOutcome(success=bool(opened >= OPEN_GOAL))
 
     def expert(self, skill: str) -> Expert:
@@ -176,11 +176,11 @@ class PullExpert(Expert):
         self.lift = 0.0
         self.stall = 0
 
-    def act(self, env) -> np.ndarray:
-        d = env.data
+    def act(self, physics: Physics) -> np.ndarray:
+        d = physics.data
         knob = d.geom("knob").xpos
-        pos = env.sensors.arm_position(d)
-        touch = env.sensors.touch(d)
+        pos = physics.sensors.arm_position(d)
+        touch = physics.sensors.touch(d)
         grasp_z = knob[2] + 0.035
         target = pos[:3].copy()
         grip = -1.0

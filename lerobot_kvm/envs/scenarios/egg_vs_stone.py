@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 
 from ..experts import GraspLiftExpert
-from ..physics import geom_ids, max_pair_force, set_free_body_pose
+from ..physics import Physics, geom_ids, max_pair_force, set_free_body_pose
 from ..scenario import Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -57,13 +57,13 @@ class EggVsStone(Scenario):
         xy = rng.uniform(-0.015, 0.015, 2)
         set_free_body_pose(model, data, "object", [xy[0], xy[1], RADII[2]], yaw=rng.uniform(-np.pi, np.pi))
 
-    def evaluate(self, env) -> StepOutcome:
-        m, d = env.model, env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        m, d = physics.model, physics.data
         if self._fragile and max_pair_force(d, m, self._object, self._fingers) > BREAK_FORCE:
             m.geom_rgba[self._gid] = [0.95, 0.75, 0.15, 1.0]  # yolk: the shell is broken
             return StepOutcome(catastrophe="break")
         lifted = d.xpos[self._bid][2] > RADII[2] + LIFT_HEIGHT
-        held = env.sensors.touch(d).min() > 0.05
+        held = physics.sensors.touch(d).min() > 0.05
         self._held = self._held + 1 if (lifted and held) else 0
         return StepOutcome(success=self._held >= 5)
 

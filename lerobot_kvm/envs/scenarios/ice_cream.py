@@ -13,6 +13,7 @@ show the difference in the wrist force and efforts (rule 3).
 import mujoco
 import numpy as np
 
+from ..physics import Physics
 from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -68,18 +69,18 @@ class ScoopExpert(Expert):
         self.target: np.ndarray | None = None
         self._fz, self._free = 0, 0.0
 
-    def act(self, env) -> np.ndarray:
-        tub = env.model.body("tub").pos
-        pos = env.sensors.arm_position(env.data)
+    def act(self, physics: Physics) -> np.ndarray:
+        tub = physics.model.body("tub").pos
+        pos = physics.sensors.arm_position(physics.data)
         if self.target is None:
             self.target = pos.copy()
-            self._fz = env.model.sensor("wrist_force").adr[0] + 2
-            self._free = env.data.sensordata[self._fz]  # wrist force with nothing touched
+            self._fz = physics.model.sensor("wrist_force").adr[0] + 2
+            self._free = physics.data.sensordata[self._fz]  # wrist force with nothing touched
         _, dx, dz, pitch, speed, turn, push = self.legs[self.leg]
         # Hand position that puts the bowl floor at the goal for the wrist's present pitch.
         off = np.array([BOWL_Z * np.sin(pos[3]), 0.0, BOWL_Z * np.cos(pos[3])])
         goal = np.array([tub[0] + dx, tub[1], dz + BOWL[2]]) - off
-        pressing = self._free - env.data.sensordata[self._fz]
+        pressing = self._free - physics.data.sensordata[self._fz]
         if pressing > push:  # felt enough resistance: sink no deeper than the scoop is commanded now
             goal[2] = max(goal[2], self.target[2])
         self.target[:3] += np.clip(goal - self.target[:3], -speed, speed)
@@ -197,8 +198,8 @@ class IceCream(Scenario):
         out = (np.abs(xy[:, 0]) > TUB_IN[0] + TUB_WALL) | (np.abs(xy[:, 1]) > TUB_IN[1] + TUB_WALL)
         return int((out & ~self._scooped(d)).sum())
 
-    def evaluate(self, env) -> StepOutcome:
-        d = env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        d = physics.data
         if self.spilled(d) > 0:
             return StepOutcome(catastrophe="spill")
         above = d.geom_xpos[self._floor][2] > TUB_H + 0.01

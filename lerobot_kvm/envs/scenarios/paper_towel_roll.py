@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 
 from ..experts import GraspLiftExpert
-from ..physics import set_free_body_pose
+from ..physics import Physics, set_free_body_pose
 from ..scenario import Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -113,13 +113,13 @@ class PaperTowelRoll(Scenario):
         self._held = 0
         self.flattening = 0.0
 
-    def evaluate(self, env) -> StepOutcome:
-        d = env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        d = physics.data
         self.flattening = max(abs(float(d.plastic[a])) for a in self._plastic)
         if self.flattening > CRUSH:
             return StepOutcome(catastrophe="crush")
         lifted = d.xpos[self._bid][2] > HALF_HEIGHT + LIFT_HEIGHT
-        held = env.sensors.touch(d).min() > 0.05
+        held = physics.sensors.touch(d).min() > 0.05
         self._held = self._held + 1 if (lifted and held) else 0
         return StepOutcome(success=self._held >= 5)
 

@@ -10,7 +10,7 @@ splayed, read from `data.plastic`. A light, force-regulated touch draws with eit
 import mujoco
 import numpy as np
 
-from ..physics import contact_normal_force, geom_ids
+from ..physics import Physics, contact_normal_force, geom_ids
 from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -89,8 +89,8 @@ class PenVsBrush(Scenario):
         self.bend = 0.0
         self.force = 0.0
 
-    def evaluate(self, env) -> StepOutcome:
-        m, d = env.model, env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        m, d = physics.model, physics.data
         self.bend = abs(float(d.plastic[self._plastic]))
         if self.bend > BENT:
             return StepOutcome(catastrophe="damage")
@@ -105,9 +105,9 @@ class PenVsBrush(Scenario):
 
     def expert(self, skill: str) -> Expert:
         if skill == "press_stroke":
-            return StrokeExpert(press_depth=0.006)
+            return StrokeExpert(self, press_depth=0.006)
         if skill == "light_stroke":
-            return StrokeExpert(press_depth=0.002)
+            return StrokeExpert(self, press_depth=0.002)
         raise ValueError(f"pen_vs_brush has no skill {skill!r}; it has ['light_stroke', 'press_stroke']")
 
 
@@ -124,7 +124,8 @@ class StrokeExpert(Expert):
     DESCEND = 0.001  # m per step near the paper
     STROKE_STEP = 0.003
 
-    def __init__(self, press_depth: float) -> None:
+    def __init__(self, scenario: PenVsBrush, press_depth: float) -> None:
+        self.scenario = scenario
         self.press_depth = press_depth
         self.phase = "approach"
         self.target: np.ndarray | None = None  # set from the hand's position on the first step
@@ -132,17 +133,17 @@ class StrokeExpert(Expert):
         self.contact_z = 0.0
         self.timer = 0
 
-    def _contact_force(self, env) -> float:
+    def _contact_force(self, physics: Physics) -> float:
         """Upward push on the tool, from the wrist force sensor relative to its reading while descending."""
-        return self.baseline - float(env.data.sensor("wrist_force").data[2])
+        return self.baseline - float(physics.data.sensor("wrist_force").data[2])
 
-    def act(self, env) -> np.ndarray:
-        d = env.data
-        pos = env.sensors.arm_position(d)
+    def act(self, physics: Physics) -> np.ndarray:
+        d = physics.data
+        pos = physics.sensors.arm_position(d)
         self.timer += 1
         if self.target is None:
             self.target = pos[:3].copy()
-        start = env.scenario.start  # where the line is to begin (the demonstrator sees the sheet)
+        start = self.scenario.start  # where the line is to begin (the demonstrator sees the sheet)
         hover = np.array([start[0] - 0.002, start[1], PAPER_TOP + TIP_BELOW_HAND + self.HOVER])
         if self.phase == "approach":
             self.target = self.target + np.clip(hover - self.target, -0.015, 0.015)
@@ -152,7 +153,7 @@ class StrokeExpert(Expert):
             self.target[2] -= self.DESCEND
             if self.timer == 4:  # free-air reading while moving, well above the paper
                 self.baseline = float(d.sensor("wrist_force").data[2])
-            if self.timer > 4 and self._contact_force(env) > 0.08:
+            if self.timer > 4 and self._contact_force(physics) > 0.08:
                 self.contact_z = pos[2]
                 self.target[2] = pos[2]  # start pressing from where the tool met the surface
                 self.phase, self.timer = "press", 0

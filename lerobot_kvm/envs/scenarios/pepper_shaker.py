@@ -18,6 +18,7 @@ starts losing weight (and shifting its load) at a much smaller tilt.
 import mujoco
 import numpy as np
 
+from ..physics import Physics
 from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -156,8 +157,8 @@ class PepperShaker(Scenario):
         inside = (np.abs(local[:, :2]) < S + 0.002).all(1) & (np.abs(local[:, 2]) < L + 0.003)
         return int((~inside).sum())
 
-    def evaluate(self, env) -> StepOutcome:
-        d = env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        d = physics.data
         self.out = self.count_out(d)
         if self.out > MAX_OUT:
             return StepOutcome(catastrophe="spill")
@@ -165,8 +166,8 @@ class PepperShaker(Scenario):
         plate = d.xpos[self._plate]
         landed = (np.linalg.norm(pos[:, :2] - plate[:2], axis=1) < PLATE_R) & (pos[:, 2] < 0.02)
         self.on_plate = int(landed.sum())
-        upright = abs(env.sensors.arm_position(d)[3]) < 0.15
-        settled = np.abs(d.qvel[self._grain_dofs(env.model)]).max() < 0.05
+        upright = abs(physics.sensors.arm_position(d)[3]) < 0.15
+        settled = np.abs(d.qvel[self._grain_dofs(physics.model)]).max() < 0.05
         return StepOutcome(success=bool(self.on_plate >= MIN_ON_PLATE and upright and settled))
 
     def _grain_dofs(self, model: mujoco.MjModel) -> np.ndarray:
@@ -178,9 +179,9 @@ class PepperShaker(Scenario):
 
     def expert(self, skill: str) -> Expert:
         if skill == "tilt_and_shake":
-            return ShakeExpert(gentle=False)
+            return ShakeExpert(self, gentle=False)
         if skill == "slow_tilt":
-            return ShakeExpert(gentle=True)
+            return ShakeExpert(self, gentle=True)
         raise ValueError(f"pepper_shaker has no skill {skill!r}; it has ['slow_tilt', 'tilt_and_shake']")
 
 
@@ -195,7 +196,8 @@ class ShakeExpert(Expert):
     FULL_TILT = -1.65
     HOVER_Z = 0.16
 
-    def __init__(self, gentle: bool) -> None:
+    def __init__(self, scenario: PepperShaker, gentle: bool) -> None:
+        self.scenario = scenario  # the demonstrator sees the plate and the pepper that came out
         self.gentle = gentle
         self.phase = "move"
         self.timer = 0
@@ -204,10 +206,10 @@ class ShakeExpert(Expert):
         self.out_before = 0
         self.back_from: float | None = None
 
-    def act(self, env) -> np.ndarray:
-        sc = env.scenario
-        d = env.data
-        pos = env.sensors.arm_position(d)
+    def act(self, physics: Physics) -> np.ndarray:
+        sc = self.scenario
+        d = physics.data
+        pos = physics.sensors.arm_position(d)
         plate = d.xpos[sc._plate]
         goal = np.array([plate[0] - 0.035, plate[1], self.HOVER_Z])
         target = pos[:3] + np.clip(goal - pos[:3], -0.015, 0.015)

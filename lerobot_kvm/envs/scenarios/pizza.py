@@ -13,7 +13,7 @@ import mujoco
 import numpy as np
 
 from ..experts import GraspLiftExpert
-from ..physics import set_free_body_pose
+from ..physics import Physics, set_free_body_pose
 from ..scenario import Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -48,7 +48,7 @@ class CrustPinchExpert(GraspLiftExpert):
         self.carry_step = carry_step
         self.stage = "raise"
 
-    def after_grasp(self, env, grasp_z: float) -> np.ndarray:
+    def after_grasp(self, physics: Physics, grasp_z: float) -> np.ndarray:
         goal = self.anchor.copy()
         if self.stage == "raise":
             goal[2] = self.base + max(self.lift, 0.002)  # sliding lifts the crust just off the table
@@ -170,8 +170,8 @@ class Pizza(Scenario):
         pairs = data.contact.geom  # (ncon, 2) geom ids of the active contacts
         return bool(((pairs == self._table).any(axis=1) & self._is_pep[pairs].any(axis=1)).any())
 
-    def evaluate(self, env) -> StepOutcome:
-        d = env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        d = physics.data
         if self.spilled(d):
             return StepOutcome(catastrophe="spill")
         crust = d.xpos[self._crust]

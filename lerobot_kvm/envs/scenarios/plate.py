@@ -12,7 +12,7 @@ stays flat.
 import mujoco
 import numpy as np
 
-from ..physics import set_free_body_pose
+from ..physics import Physics, set_free_body_pose
 from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -112,8 +112,8 @@ class Plate(Scenario):
         main_half = (HALF_Y - HINGE_Y) / 2
         return abs(rel[0]) < HALF_X and -0.005 < rel[1] < 2 * main_half and 0.0 < rel[2] < 0.03
 
-    def evaluate(self, env) -> StepOutcome:
-        d = env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        d = physics.data
         plate_z = d.xpos[self._rim][2]
         if not self.cake_on_plate(d) and d.xpos[self._cake][2] < plate_z - 0.01:
             return StepOutcome(catastrophe="drop")  # the cake slid off the plate
@@ -147,11 +147,11 @@ class RimLiftExpert(Expert):
         self.grasp_z = 0.0
         self.timer = 0
 
-    def act(self, env) -> np.ndarray:
-        d = env.data
+    def act(self, physics: Physics) -> np.ndarray:
+        d = physics.data
         rim = d.body("plate_rim").xpos
         lip_y = rim[1] - (HINGE_Y + HALF_Y) / 2 + LIP_T
-        pos = env.sensors.arm_position(d)
+        pos = physics.sensors.arm_position(d)
         self.timer += 1
         if self.target is None:
             self.target = pos[:3].copy()
@@ -169,7 +169,7 @@ class RimLiftExpert(Expert):
                 self.phase, self.timer = "close", 0
         elif self.phase == "close":
             grip = self.GRIP
-            if (env.sensors.touch(d).min() > 0.3 and self.timer > 4) or self.timer > 25:
+            if (physics.sensors.touch(d).min() > 0.3 and self.timer > 4) or self.timer > 25:
                 self.phase = "lift"
         else:
             grip = self.GRIP
@@ -189,11 +189,11 @@ class SupportLiftExpert(Expert):
         self.target: np.ndarray | None = None  # set from the hand's position on the first step
         self.timer = 0
 
-    def act(self, env) -> np.ndarray:
-        d = env.data
+    def act(self, physics: Physics) -> np.ndarray:
+        d = physics.data
         plate = d.body("plate_rim").xpos
         near_x = plate[0] - HALF_X
-        pos = env.sensors.arm_position(d)
+        pos = physics.sensors.arm_position(d)
         self.timer += 1
         if self.target is None:
             self.target = pos[:3].copy()

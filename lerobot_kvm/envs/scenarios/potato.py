@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 
 from ..experts import GraspLiftExpert
-from ..physics import geom_ids, set_free_body_pose
+from ..physics import Physics, geom_ids, set_free_body_pose
 from ..scenario import Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -97,13 +97,13 @@ class Potato(Scenario):
         """Permanent deformation (m) of the deeper-dented pad."""
         return float(max(abs(data.plastic[a]) for a in self._plastic))
 
-    def evaluate(self, env) -> StepOutcome:
-        m, d = env.model, env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        m, d = physics.model, physics.data
         if self.dent(d) > CRUSH_DEPTH:
             m.geom_rgba[self._gid] = [*MASH_RGB, 1.0]  # the flesh has split open
             return StepOutcome(catastrophe="crush")
         lifted = d.xpos[self._bid][2] > RADII[2] + LIFT_HEIGHT
-        held = env.sensors.touch(d).min() > 0.05
+        held = physics.sensors.touch(d).min() > 0.05
         self._held = self._held + 1 if (lifted and held) else 0
         return StepOutcome(success=self._held >= 5)
 

@@ -14,6 +14,7 @@ stopped getting lighter, and rights it before moving away.
 import mujoco
 import numpy as np
 
+from ..physics import Physics
 from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -187,12 +188,12 @@ class Pouring(Scenario):
         spilled = int((~over_bowl & (p[:, 2] < BOWL_H - 0.02)).sum())
         return in_bowl, spilled
 
-    def evaluate(self, env) -> StepOutcome:
-        self._set_drag(env.model, env.data)
-        in_bowl, spilled = self._tally(env.data)
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        self._set_drag(physics.model, physics.data)
+        in_bowl, spilled = self._tally(physics.data)
         if spilled >= SPILL:
             return StepOutcome(catastrophe="spill")
-        upright = abs(env.sensors.arm_position(env.data)[3]) < 0.15
+        upright = abs(physics.sensors.arm_position(physics.data)[3]) < 0.15
         return StepOutcome(success=bool(in_bowl >= IN_BOWL * N_DROPS and upright))
 
     def expert(self, skill: str) -> Expert:
@@ -233,9 +234,9 @@ class PourExpert(Expert):
         x = self.bowl[0] - BOWL_IN + self.LIP_INSIDE - lip_offset(pitch)[0]
         return np.array([x, self.bowl[1], self.HAND_Z])
 
-    def act(self, env) -> np.ndarray:
-        pos = env.sensors.arm_position(env.data)
-        self.bowl = env.data.body("bowl").xpos[:2].copy()  # where the bowl stands (the demonstrator sees it)
+    def act(self, physics: Physics) -> np.ndarray:
+        pos = physics.sensors.arm_position(physics.data)
+        self.bowl = physics.data.body("bowl").xpos[:2].copy()  # where the bowl stands (the demonstrator sees it)
         self.timer += 1
         if self.home is None:
             self.target, self.home = pos[:3].copy(), pos[:3].copy()
@@ -251,7 +252,7 @@ class PourExpert(Expert):
                 self.phase, self.timer = "pour", 0
         elif self.phase == "pour":
             self.target = self._over_bowl(pos[3])
-            self.forces.append(float(np.linalg.norm(env.data.sensor("wrist_force").data)))
+            self.forces.append(float(np.linalg.norm(physics.data.sensor("wrist_force").data)))
             done = self.timer >= self.hold
             if self.settle is not None:
                 recent = self.forces[-8:]

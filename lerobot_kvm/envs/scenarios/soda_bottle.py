@@ -10,7 +10,7 @@ low on the bottle keeps the contact and never lets it slide free.
 import mujoco
 import numpy as np
 
-from ..physics import set_free_body_pose
+from ..physics import Physics, set_free_body_pose
 from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -107,8 +107,8 @@ class SodaBottle(Scenario):
     def tilt(self, data: mujoco.MjData) -> float:
         return float(np.arccos(np.clip(data.xmat[self._bid][8], -1.0, 1.0)))
 
-    def evaluate(self, env) -> StepOutcome:
-        d = env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        d = physics.data
         tilt = self.tilt(d)
         if tilt > TIP_ANGLE:
             return StepOutcome(catastrophe="tip_over")
@@ -157,17 +157,17 @@ class PushExpert(Expert):
         self.goal_x = 0.0
         self.timer = 0
 
-    def act(self, env) -> np.ndarray:
-        d = env.data
+    def act(self, physics: Physics) -> np.ndarray:
+        d = physics.data
         bottle = d.body("bottle").xpos
-        pos = env.sensors.arm_position(d)
+        pos = physics.sensors.arm_position(d)
         self.timer += 1
         if self.target is None:
             self.target = pos[:3].copy()
         if self.phase == "approach":
             start = np.array([bottle[0] - RADIUS - self.ahead - 0.03, bottle[1], self.hand_z])
             self.target = self.target + np.clip(start - self.target, -0.015, 0.015)
-            closed = env.sensors.finger_width(d) > 0.085
+            closed = physics.sensors.finger_width(d) > 0.085
             if np.linalg.norm(start - pos[:3]) < 0.004 and closed:
                 self.phase = "push"
                 self.goal_x = bottle[0] - RADIUS - self.ahead + PUSH_DISTANCE + 0.005

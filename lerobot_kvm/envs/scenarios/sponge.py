@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 
 from ..experts import GraspLiftExpert
-from ..physics import contact_normal_force, geom_ids, set_free_body_pose
+from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
 from ..scenario import Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -80,15 +80,15 @@ class Sponge(Scenario):
         xy = rng.uniform(-0.012, 0.012, 2)
         set_free_body_pose(model, data, "sponge", [xy[0], xy[1], HALF[2]], yaw=rng.uniform(-0.15, 0.15))
 
-    def evaluate(self, env) -> StepOutcome:
-        m, d = env.model, env.data
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        m, d = physics.model, physics.data
         height = d.xpos[self._bid][2] - HALF[2]
         gripped = contact_normal_force(d, m, self._sponge, self._fingers) > 0.05
         if height > AIRBORNE and gripped:
             self._airborne = True
         if self._airborne and not gripped:
             return StepOutcome(catastrophe="drop")
-        held = height > LIFT_HEIGHT and env.sensors.touch(d).min() > 0.05
+        held = height > LIFT_HEIGHT and physics.sensors.touch(d).min() > 0.05
         self._held = self._held + 1 if held else 0
         return StepOutcome(success=self._held >= 5)
 

@@ -18,6 +18,7 @@ force: without the cover nothing stops the sliding toothpicks and the load leave
 import mujoco
 import numpy as np
 
+from ..physics import Physics
 from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -156,32 +157,32 @@ class ToothpickDispenser(Scenario):
         )
         return int((~inside).sum())
 
-    def pick_speed(self, data: mujoco.MjData) -> np.ndarray:
+    def pick_speed(self, physics: Physics) -> np.ndarray:
         """Sliding speed of each toothpick relative to the dispenser (m/s), from the simulator."""
+        model, data = physics.model, physics.data
         vel = np.zeros(6)
         out = []
         hand_v = np.zeros(6)
-        mujoco.mj_objectVelocity(self._model, data, mujoco.mjtObj.mjOBJ_BODY, self._did, hand_v, 0)
+        mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, self._did, hand_v, 0)
         for b in self._picks:
-            mujoco.mj_objectVelocity(self._model, data, mujoco.mjtObj.mjOBJ_BODY, b, vel, 0)
+            mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_BODY, b, vel, 0)
             out.append(np.linalg.norm(vel[3:] - hand_v[3:]))
         return np.array(out)
 
-    def evaluate(self, env) -> StepOutcome:
-        d = env.data
-        self._model = env.model
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        d = physics.data
         self.out = self.count_out(d)
         if self.out >= SPILL_OUT:
             return StepOutcome(catastrophe="spill")
-        level = abs(env.sensors.arm_position(d)[3]) < 0.08
+        level = abs(physics.sensors.arm_position(d)[3]) < 0.08
         self._level = self._level + 1 if (level and 1 <= self.out <= MAX_OUT) else 0
         return StepOutcome(success=self._level >= 5)
 
     def expert(self, skill: str) -> Expert:
         if skill == "tilt_and_shake":
-            return TiltExpert(gentle=False)
+            return TiltExpert(self, gentle=False)
         if skill == "slow_tilt":
-            return TiltExpert(gentle=True)
+            return TiltExpert(self, gentle=True)
         raise ValueError(f"toothpick_dispenser has no skill {skill!r}; it has ['slow_tilt', 'tilt_and_shake']")
 
 
@@ -194,18 +195,18 @@ class TiltExpert(Expert):
 
     STEEP = -0.9
 
-    def __init__(self, gentle: bool) -> None:
+    def __init__(self, scenario: ToothpickDispenser, gentle: bool) -> None:
+        self.scenario = scenario  # the demonstrator sees how many toothpicks are out
         self.gentle = gentle
         self.phase = "move"
         self.timer = 0
         self.pitch = 0.0
         self.shakes = 0
 
-    def act(self, env) -> np.ndarray:
-        sc = env.scenario
-        d = env.data
-        sc._model = env.model
-        pos = env.sensors.arm_position(d)
+    def act(self, physics: Physics) -> np.ndarray:
+        sc = self.scenario
+        d = physics.data
+        pos = physics.sensors.arm_position(d)
         saucer = d.body("saucer").xpos
         goal = np.array([saucer[0] + 0.05, saucer[1], 0.15])
         target = pos[:3] + np.clip(goal - pos[:3], -0.015, 0.015)
@@ -217,7 +218,7 @@ class TiltExpert(Expert):
                 self.phase, self.timer = "tilt", 0
         elif self.phase == "tilt":
             if self.gentle:
-                sliding = sc.pick_speed(d).max() > 0.01
+                sliding = sc.pick_speed(physics).max() > 0.01
                 if out >= 1:
                     self.phase, self.timer = "back", 0
                 elif not sliding:
