@@ -8,7 +8,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ..envs.scenario import resolve_tasks
+from ..envs.catalogue import resolve_tasks
 from ..envs.suite_check import MIN_PARTICLE_STEPS_PER_S, MIN_STEPS_PER_S, check_suite
 from .table import results_table
 

@@ -3,8 +3,8 @@
 import argparse
 from pathlib import Path
 
+from ..envs.catalogue import resolve_tasks
 from ..envs.contact_sheet import contact_sheet
-from ..envs.scenario import resolve_tasks
 
 
 def run(args: argparse.Namespace) -> int:

@@ -7,7 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ..envs.scenario import resolve_tasks
+from ..envs.catalogue import resolve_tasks
 from ..envs.sensing import check_lags
 from ..kvm.configuration import NEIGHBOUR_SPACES, ONLINE_ENCODERS, RISK_MODELS, KvmConfig
 from .table import results_table

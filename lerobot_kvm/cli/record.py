@@ -5,7 +5,8 @@ import json
 from pathlib import Path
 
 from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
-from ..envs.scenario import make_scenario, resolve_tasks
+from ..envs.catalogue import resolve_tasks
+from ..envs.scenario import make_scenario
 
 
 def _split(text: str) -> list[str]:

@@ -7,7 +7,7 @@ from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig, _make_vec_env_cls
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
 
-from .scenario import INSTRUCTIONS, VARIANTS, resolve_tasks
+from .catalogue import INSTRUCTIONS, VARIANTS, resolve_tasks
 from .sensing import ACTION_NAMES, STATE_NAMES, context_names
 
 OBS_CONTEXT = "observation.context"

@@ -7,8 +7,8 @@ object is (in A/B) indistinguishable at reset, and that the harm is visible afte
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from .catalogue import CATEGORIES, SCENARIO_INFOS
 from .env import KvmObsolescenceEnv
-from .scenario import CATEGORIES, SCENARIOS
 
 LABEL_WIDTH = 190
 CAPTION_HEIGHT = 34
@@ -73,7 +73,7 @@ def contact_sheet(scenario_ids: list[str], seed: int = 0, size: int = 160) -> Im
     for col, title in enumerate(titles):
         draw.text((LABEL_WIDTH + col * (size + PAD), PAD), title, fill=TEXT, font=bold)
     for r, sid in enumerate(scenario_ids):
-        info = SCENARIOS[sid].info
+        info = SCENARIO_INFOS[sid]
         top = HEADER_HEIGHT + r * row_h
         label = "\n".join(
             [

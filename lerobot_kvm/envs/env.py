@@ -6,9 +6,9 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from . import scenarios  # noqa: F401  (registers the scenario classes)
+from .catalogue import check_variant
 from .physics import Physics
-from .scenario import StepOutcome, check_variant, make_scenario
+from .scenario import StepOutcome, make_scenario
 from .scene import GRIPPER_HOME, build_scene_xml
 from .sensing import ACTION_NAMES, STATE_NAMES, ContextWindow, Sensors
 

@@ -7,9 +7,12 @@ Nothing here reads an object's parameters or the scenario's variant.
 
 from collections import deque
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
-import mujoco
 import numpy as np
+
+if TYPE_CHECKING:  # the channel names are read without the simulator (the env config's feature shapes)
+    import mujoco
 
 ARM_JOINTS = ("x", "y", "z", "pitch")
 ACTUATORS = ("x", "y", "z", "pitch", "grip_l", "grip_r")
@@ -65,8 +68,8 @@ class ContextWindow:
 class Sensors:
     """Resolves ids once so that per-step reads are plain array indexing."""
 
-    def __init__(self, model: mujoco.MjModel) -> None:
-        jid = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in (*ARM_JOINTS, "finger_l", "finger_r")]
+    def __init__(self, model: "mujoco.MjModel") -> None:
+        jid = [model.joint(j).id for j in (*ARM_JOINTS, "finger_l", "finger_r")]
         self._qpos = np.array([model.jnt_qposadr[j] for j in jid])
         self._qvel = np.array([model.jnt_dofadr[j] for j in jid])
         self._home = np.array(
@@ -80,25 +83,25 @@ class Sensors:
         self._force = sensor_slice("wrist_force")
         self._torque = sensor_slice("wrist_torque")
         self._touch = [sensor_slice("touch_l"), sensor_slice("touch_r")]
-        self._act = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in ACTUATORS])
+        self._act = np.array([model.actuator(a).id for a in ACTUATORS])
 
-    def arm_position(self, data: mujoco.MjData) -> np.ndarray:
+    def arm_position(self, data: "mujoco.MjData") -> np.ndarray:
         """Carriage x, y, z in world coordinates and wrist pitch."""
         q = data.qpos[self._qpos[:4]].copy()
         q[:3] += self._home
         return q
 
-    def finger_width(self, data: mujoco.MjData) -> float:
+    def finger_width(self, data: "mujoco.MjData") -> float:
         """Closing travel of both fingers (0 = fully open)."""
         return float(data.qpos[self._qpos[4]] + data.qpos[self._qpos[5]])
 
-    def touch(self, data: mujoco.MjData) -> np.ndarray:
+    def touch(self, data: "mujoco.MjData") -> np.ndarray:
         return np.array([data.sensordata[s][0] for s in self._touch])
 
-    def state(self, data: mujoco.MjData, grip_applied: float) -> np.ndarray:
+    def state(self, data: "mujoco.MjData", grip_applied: float) -> np.ndarray:
         return np.concatenate([self.arm_position(data), [self.finger_width(data), grip_applied]]).astype(np.float32)
 
-    def context(self, data: mujoco.MjData, arm_target: np.ndarray, last_action: np.ndarray) -> np.ndarray:
+    def context(self, data: "mujoco.MjData", arm_target: np.ndarray, last_action: np.ndarray) -> np.ndarray:
         finger_vel = data.qvel[self._qvel[4]] + data.qvel[self._qvel[5]]
         return np.concatenate(
             [

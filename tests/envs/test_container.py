@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 
 
 def run(variant: str, skill: str, seed: int = 0) -> tuple[dict, list[float], KvmObsolescenceEnv]:

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 from lerobot_kvm.envs.sensing import FRAME_NAMES
 
 EFFORT_X = FRAME_NAMES.index("effort_x")

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv, KvmObsolescenceEnvConfig, resolve_tasks
+from lerobot_kvm.envs import KvmObsolescenceEnvConfig, resolve_tasks
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 
 
 def robot_touches_object(env: KvmObsolescenceEnv) -> bool:

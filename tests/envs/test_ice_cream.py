@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 from lerobot_kvm.envs.scenarios.ice_cream import LATTICE, TUB_H, TUB_IN, TUB_WALL
 from lerobot_kvm.envs.sensing import FRAME_NAMES
 from lerobot_kvm.envs.suite_check import run_episode

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 from lerobot_kvm.envs.sensing import FRAME_NAMES
 
 FORCE = [FRAME_NAMES.index(f"wrist_force_{a}") for a in "xyz"]

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 from lerobot_kvm.envs.scenarios.potato import CRUSH_DEPTH
 from lerobot_kvm.envs.suite_check import run_episode
 

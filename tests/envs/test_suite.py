@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import SCENARIOS, KvmObsolescenceEnv
+from lerobot_kvm.envs.catalogue import CATEGORIES, VARIANTS
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 from lerobot_kvm.envs.physics import holds_tool, robot_geom_mask, robot_in_contact
-from lerobot_kvm.envs.scenario import CATEGORIES, VARIANTS, Expert
+from lerobot_kvm.envs.scenario import SCENARIOS, Expert
 
 IDS = sorted(SCENARIOS)
 

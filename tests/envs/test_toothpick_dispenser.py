@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 
 
 def run(variant: str, skill: str, seed: int = 0) -> tuple[dict, KvmObsolescenceEnv]:

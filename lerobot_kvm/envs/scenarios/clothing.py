@@ -12,9 +12,10 @@ change between variants; the wrist force shows the growing load (rule 3).
 import mujoco
 import numpy as np
 
+from ..catalogue import SCENARIO_INFOS
 from ..experts import GraspLiftExpert
 from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
-from ..scenario import Scenario, ScenarioInfo, StepOutcome, register_scenario
+from ..scenario import Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts
 
 COLLAR = (0.02, 0.03, 0.0125)  # half extents of the bunched collar
@@ -46,21 +47,7 @@ def _panels(i: int, first_offset: float) -> str:
 
 @register_scenario
 class Clothing(Scenario):
-    info = ScenarioInfo(
-        id="clothing",
-        category="A",
-        title="Clothing (dry vs wet)",
-        instructions={"prior": "pick up the t-shirt", "shifted": "pick up the t-shirt"},
-        prior_skill="light_grasp",
-        safe_skill="firm_grasp",
-        skill_instructions={
-            "light_grasp": "pick up the t-shirt with a light pinch",
-            "firm_grasp": "pick up the t-shirt with a firm pinch",
-        },
-        harm="drop",
-        what_changes="a water-soaked t-shirt (560 g, slick) replaces a dry 80 g one of the same look",
-        success="the whole t-shirt lifted clear of the table and held by both fingers",
-    )
+    info = SCENARIO_INFOS["clothing"]
     grips = {"light_grasp": 0.08, "firm_grasp": 0.6}
 
     def parts(self) -> SceneParts:

@@ -13,8 +13,9 @@ show the difference in the wrist force and efforts (rule 3).
 import mujoco
 import numpy as np
 
+from ..catalogue import SCENARIO_INFOS
 from ..physics import Physics
-from ..scenario import Expert, Scenario, ScenarioInfo, StepOutcome, register_scenario
+from ..scenario import Expert, Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts
 
 R = 0.0075  # particle radius
@@ -95,22 +96,7 @@ class ScoopExpert(Expert):
 
 @register_scenario
 class IceCream(Scenario):
-    info = ScenarioInfo(
-        id="ice_cream",
-        category="A",
-        particles=True,
-        title="Ice cream (frozen vs melted)",
-        instructions={"prior": "scoop some ice cream", "shifted": "scoop some ice cream"},
-        prior_skill="forceful_scoop",
-        safe_skill="gentle_scoop",
-        skill_instructions={
-            "forceful_scoop": "press the scoop in hard and scoop the ice cream quickly",
-            "gentle_scoop": "scoop the ice cream slowly and lightly",
-        },
-        harm="spill",
-        what_changes="melted ice cream (runny) replaces frozen ice cream of the same look",
-        success=f"at least {MIN_SCOOPED} balls of ice cream lifted above the rim in the scoop, none spilled",
-    )
+    info = SCENARIO_INFOS["ice_cream"]
 
     def parts(self) -> SceneParts:
         wx, wy = TUB_IN[0] + TUB_WALL, TUB_IN[1] + TUB_WALL

@@ -11,9 +11,10 @@ weight as soon as the lift starts (rule 3).
 import mujoco
 import numpy as np
 
+from ..catalogue import SCENARIO_INFOS
 from ..experts import GraspLiftExpert
 from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
-from ..scenario import Scenario, ScenarioInfo, StepOutcome, register_scenario
+from ..scenario import Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts
 
 HALF = (0.045, 0.03, 0.02)  # sponge half extents (m)
@@ -33,23 +34,7 @@ BODY = {
 
 @register_scenario
 class Sponge(Scenario):
-    info = ScenarioInfo(
-        id="sponge",
-        category="A",
-        title="Sponge (dry vs wet)",
-        instructions={v: "pick up the sponge" for v in ("prior", "shifted", "control")},
-        prior_skill="light_grasp",
-        safe_skill="firm_grasp",
-        skill_instructions={
-            "light_grasp": "quickly pick up the sponge with a light pinch",
-            "firm_grasp": "firmly pick up the sponge and lift it steadily",
-        },
-        harm="drop",
-        what_changes="a water-soaked sponge (350 g, slippery) replaces a dry 40 g one of the same look; "
-        "control: a damp 90 g sponge",
-        success=f"sponge lifted {LIFT_HEIGHT * 100:.0f} cm above the table and held by both fingers",
-        variants=("prior", "shifted", "control"),
-    )
+    info = SCENARIO_INFOS["sponge"]
     skills = {"light_grasp": (0.1, 0.04), "firm_grasp": (0.6, 0.01)}  # (grip, lift m/step)
 
     def parts(self) -> SceneParts:
