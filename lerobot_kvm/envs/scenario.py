@@ -6,9 +6,9 @@ with it the simulator) only when its class is first looked up.
 
 import abc
 import importlib
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import mujoco
 import numpy as np
@@ -36,7 +36,15 @@ class Expert(abc.ABC):
 
 
 class Scenario(abc.ABC):
+    """A scenario's objects (`parts`), hidden variant (`reset`), judge (`evaluate`) and skills.
+
+    `skills` is the scenario's table of skills: skill name -> expert factory (an expert class, or a
+    `functools.partial` of one with the skill's parameters). `expert(skill)` builds from it, adding
+    `expert_context()`.
+    """
+
     info: ClassVar[ScenarioInfo]
+    skills: ClassVar[dict[str, Callable[..., Expert]]]
 
     @abc.abstractmethod
     def parts(self) -> SceneParts:
@@ -50,9 +58,16 @@ class Scenario(abc.ABC):
     def evaluate(self, physics: Physics) -> StepOutcome:
         """Judge the current physics state: success and/or a catastrophe (which ends the episode)."""
 
-    @abc.abstractmethod
     def expert(self, skill: str) -> Expert:
         """A fresh expert for `skill` (one of `info.prior_skill`, `info.safe_skill`)."""
+        if skill not in self.skills:
+            raise ValueError(f"{self.info.id} has no skill {skill!r}; it has {sorted(self.skills)}")
+        return self.skills[skill](**self.expert_context())
+
+    def expert_context(self) -> dict[str, Any]:
+        """Keyword arguments every skill's expert is built with besides its own parameters: what a demonstrator
+        sees beyond the physics (the scenario itself) or the scenario's grasp; none by default."""
+        return {}
 
 
 class _ScenarioClasses(Mapping[str, type[Scenario]]):

@@ -1,5 +1,7 @@
 """Contract every registered scenario must meet; cheap checks only (expert episodes live in per-scenario tests)."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -58,7 +60,10 @@ def test_scenario_info_is_complete(sid):
     assert all(text.strip() for text in (info.title, info.harm, info.what_changes, info.success))
     assert info.max_steps > 0
     scenario = SCENARIOS[sid]()
+    assert set(scenario.skills) == {info.prior_skill, info.safe_skill}
     assert all(isinstance(scenario.expert(skill), Expert) for skill in (info.prior_skill, info.safe_skill))
+    with pytest.raises(ValueError, match=re.escape(f"{sid} has no skill 'juggle'; it has {sorted(scenario.skills)}")):
+        scenario.expert("juggle")
 
 
 @pytest.mark.parametrize("sid", IDS)

@@ -8,6 +8,8 @@ A quick push hits with an impact far above that; a slow push slides either book 
 force of about its sliding friction (1-3 N).
 """
 
+from functools import partial
+
 import mujoco
 import numpy as np
 
@@ -33,9 +35,49 @@ CREASE = 0.0005  # m of permanent dent that counts as a damaged cover
 CLOSE_GRIP = 0.25  # closes the empty fingers against each other into a pusher
 
 
+class BookPushExpert(Expert):
+    """Close the fingers into a pusher, lower them behind the book's back edge, push along +x, stop."""
+
+    PUSH_Z = 0.012  # fingertip height: low on the book's back face
+
+    def __init__(self, speed: float) -> None:
+        self.speed = speed
+        self.phase = "approach"
+        self.target: np.ndarray | None = None  # set from the hand's position on the first step
+        self.goal_x = 0.0
+        self.timer = 0
+
+    def act(self, physics: Physics) -> np.ndarray:
+        d = physics.data
+        book = d.body("book").xpos
+        pos = physics.sensors.arm_position(d)
+        back = book[0] - HALF[0]
+        self.timer += 1
+        if self.target is None:
+            self.target = pos[:3].copy()
+        if self.phase == "approach":
+            start = np.array([back - 0.015 - 0.03, book[1], self.PUSH_Z + 0.07])
+            step = np.clip(start - self.target, -0.015, 0.015)
+            if np.linalg.norm(start[:2] - self.target[:2]) > 0.01:
+                step[2] = max(step[2], 0.0)  # reach the spot behind the book before going down
+            self.target = self.target + step
+            closed = physics.sensors.finger_width(d) > 0.085
+            if np.linalg.norm(start - pos[:3]) < 0.004 and closed:
+                self.phase = "push"
+                self.goal_x = back - 0.015 + PUSH_DISTANCE + 0.005
+        elif self.phase == "push":
+            self.target[0] = min(self.target[0] + self.speed, self.goal_x)
+            if self.target[0] >= self.goal_x:
+                self.phase, self.timer = "hold", 0
+        elif self.timer > 8:  # back off once the book has come to rest
+            self.target[0] = max(self.target[0] - 0.004, self.goal_x - 0.03)
+        return np.array([*self.target, 0.0, CLOSE_GRIP], dtype=np.float32)
+
+
 @register_scenario
 class Book(Scenario):
     info = SCENARIO_INFOS["book"]
+    skills = {"fast_push": partial(BookPushExpert, speed=0.035), "slow_push": partial(BookPushExpert, speed=0.004)}
 
     def parts(self) -> SceneParts:
         hx, hy, hz = HALF
@@ -105,49 +147,3 @@ class Book(Scenario):
         ok = moved > PUSH_DISTANCE and square and speed < 0.01
         self._rest = self._rest + 1 if ok else 0
         return StepOutcome(success=self._rest >= 3)
-
-    def expert(self, skill: str) -> Expert:
-        if skill == "fast_push":
-            return BookPushExpert(speed=0.035)
-        if skill == "slow_push":
-            return BookPushExpert(speed=0.004)
-        raise ValueError(f"book has no skill {skill!r}; it has ['fast_push', 'slow_push']")
-
-
-class BookPushExpert(Expert):
-    """Close the fingers into a pusher, lower them behind the book's back edge, push along +x, stop."""
-
-    PUSH_Z = 0.012  # fingertip height: low on the book's back face
-
-    def __init__(self, speed: float) -> None:
-        self.speed = speed
-        self.phase = "approach"
-        self.target: np.ndarray | None = None  # set from the hand's position on the first step
-        self.goal_x = 0.0
-        self.timer = 0
-
-    def act(self, physics: Physics) -> np.ndarray:
-        d = physics.data
-        book = d.body("book").xpos
-        pos = physics.sensors.arm_position(d)
-        back = book[0] - HALF[0]
-        self.timer += 1
-        if self.target is None:
-            self.target = pos[:3].copy()
-        if self.phase == "approach":
-            start = np.array([back - 0.015 - 0.03, book[1], self.PUSH_Z + 0.07])
-            step = np.clip(start - self.target, -0.015, 0.015)
-            if np.linalg.norm(start[:2] - self.target[:2]) > 0.01:
-                step[2] = max(step[2], 0.0)  # reach the spot behind the book before going down
-            self.target = self.target + step
-            closed = physics.sensors.finger_width(d) > 0.085
-            if np.linalg.norm(start - pos[:3]) < 0.004 and closed:
-                self.phase = "push"
-                self.goal_x = back - 0.015 + PUSH_DISTANCE + 0.005
-        elif self.phase == "push":
-            self.target[0] = min(self.target[0] + self.speed, self.goal_x)
-            if self.target[0] >= self.goal_x:
-                self.phase, self.timer = "hold", 0
-        elif self.timer > 8:  # back off once the book has come to rest
-            self.target[0] = max(self.target[0] - 0.004, self.goal_x - 0.03)
-        return np.array([*self.target, 0.0, CLOSE_GRIP], dtype=np.float32)

@@ -12,13 +12,16 @@ light bag, which the chips can bear. The shift shows in the finger travel: the o
 way under the same grip command.
 """
 
+from functools import partial
+
 import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
 from ..experts import GraspLiftExpert
+from ..grasp_lift import GraspLiftScenario
 from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
-from ..scenario import Scenario, StepOutcome, register_scenario
+from ..scenario import StepOutcome, register_scenario
 from ..scene import SceneParts
 
 HALF = (0.06, 0.033, 0.0225)  # bag half extents (x, y of the panel mid-planes, z)
@@ -44,9 +47,10 @@ _BAG_GEOMS = (
 
 
 @register_scenario
-class ChipBag(Scenario):
+class ChipBag(GraspLiftScenario):
     info = SCENARIO_INFOS["chip_bag"]
-    grips = {"firm_grasp": 0.75, "gentle_grasp": 0.15}
+    skills = {"firm_grasp": partial(GraspLiftExpert, grip=0.75), "gentle_grasp": partial(GraspLiftExpert, grip=0.15)}
+    body, lift_height, grasp = "bag", LIFT_HEIGHT, {"grasp_height": HALF[2]}
 
     def parts(self) -> SceneParts:
         hx, hy, hz = HALF
@@ -91,11 +95,11 @@ class ChipBag(Scenario):
         )
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+        super().reset(model, data, variant, rng)
         self._chips = [geom_ids(model, f"chip_{i}") for i in range(N_CHIPS)]
         self._chip_gids = [model.geom(f"chip_{i}").id for i in range(N_CHIPS)]
         self._walls = geom_ids(model, "panel_l", "panel_r")
         self._fingers = geom_ids(model, "finger_l", "finger_r")
-        self._bid = model.body("bag").id
         preload, k = PANEL_SPRING[variant]
         for side in ("l", "r"):
             j = model.joint(f"panel_{side}")
@@ -111,7 +115,6 @@ class ChipBag(Scenario):
             model.geom_rgba[model.geom(name).id, :3] = rgb
         for g in self._chip_gids:
             model.geom_rgba[g, :3] = [0.93, 0.78, 0.35]
-        self._held = 0
         self.max_chip_force = 0.0
 
     def chip_forces(self, physics: Physics) -> list[float]:
@@ -119,7 +122,7 @@ class ChipBag(Scenario):
         return [contact_normal_force(physics.data, physics.model, chip, self._walls) for chip in self._chips]
 
     def evaluate(self, physics: Physics) -> StepOutcome:
-        m, d = physics.model, physics.data
+        m = physics.model
         forces = self.chip_forces(physics)
         self.max_chip_force = max(self.max_chip_force, *forces)
         if max(forces) > CHIP_BREAK:
@@ -127,12 +130,4 @@ class ChipBag(Scenario):
                 if f > CHIP_BREAK:
                     m.geom_rgba[g, :3] = [0.6, 0.45, 0.2]  # crumbs
             return StepOutcome(catastrophe="crush")
-        lifted = d.xpos[self._bid][2] > LIFT_HEIGHT
-        held = physics.sensors.touch(d).min() > 0.05
-        self._held = self._held + 1 if (lifted and held) else 0
-        return StepOutcome(success=self._held >= 5)
-
-    def expert(self, skill: str) -> GraspLiftExpert:
-        if skill not in self.grips:
-            raise ValueError(f"chip_bag has no skill {skill!r}; it has {sorted(self.grips)}")
-        return GraspLiftExpert("bag", grip=self.grips[skill], grasp_height=HALF[2])
+        return self.held_aloft(physics)

@@ -8,6 +8,8 @@ flattened, read from `data.plastic`. Spreading with the light pressure of a forc
 works on both.
 """
 
+from functools import partial
+
 import mujoco
 import numpy as np
 
@@ -34,9 +36,69 @@ SLICE = {"prior": (3000.0, 0.001, 1.0), "shifted": (800.0, 0.008, 0.006)}
 CRUSH = 0.002  # m of permanent flattening that counts as crushed bread
 
 
+class SpreadExpert(Expert):
+    """Hover over the slice, descend until the wrist feels contact, press, stroke along +x.
+
+    A guarded move: the contact height is where the wrist force sensor first feels the slice; the
+    hand is then commanded `press_depth` below it. The position loop (1500 N/m) in series with the
+    slice presses with about kp * depth on a hard cracker (12 mm: ~15 N, firm; 2 mm: ~2 N, gentle)
+    and less on soft bread, which gives way.
+    """
+
+    HOVER = 0.02
+    DESCEND = 0.002  # m per step once close to the surface
+    STROKE_STEP = 0.003  # m per step along the stroke
+
+    def __init__(self, press_depth: float) -> None:
+        self.press_depth = press_depth
+        self.phase = "approach"
+        self.target: np.ndarray | None = None  # set from the hand's position on the first step
+        self.baseline = 0.0
+        self.contact_z = 0.0
+        self.timer = 0
+
+    def _contact_force(self, physics: Physics) -> float:
+        """Upward push on the tool, from the wrist force sensor relative to its free-air reading."""
+        return self.baseline - float(physics.data.sensor("wrist_force").data[2])
+
+    def act(self, physics: Physics) -> np.ndarray:
+        d = physics.data
+        slice_xy = d.body("slice").xpos[:2]
+        pos = physics.sensors.arm_position(d)
+        self.timer += 1
+        if self.target is None:
+            self.target = pos[:3].copy()
+        start = np.array([slice_xy[0] - STROKE / 2 - 0.003, slice_xy[1], TOP_Z + BLADE_BELOW_HAND + self.HOVER])
+        if self.phase == "approach":
+            self.target = self.target + np.clip(start - self.target, -0.015, 0.015)
+            if np.linalg.norm(start - pos[:3]) < 0.003 and self.timer > 10:
+                self.phase, self.timer = "settle", 0
+        elif self.phase == "settle":  # read the free-air wrist force before touching anything
+            self.baseline = float(d.sensor("wrist_force").data[2])
+            if self.timer > 3:
+                self.phase = "descend"
+        elif self.phase == "descend":
+            self.target[2] -= self.DESCEND
+            if self._contact_force(physics) > 0.3:
+                self.contact_z = pos[2]
+                self.target[2] = pos[2]  # start pressing from where the tool met the surface
+                self.phase, self.timer = "press", 0
+        elif self.phase in ("press", "stroke"):
+            self.target[2] = max(self.target[2] - 0.004, self.contact_z - self.press_depth)
+            if self.phase == "press" and self.timer > 5:
+                self.phase = "stroke"
+            if self.phase == "stroke":
+                self.target[0] = min(self.target[0] + self.STROKE_STEP, slice_xy[0] + STROKE / 2 + 0.006)
+        return np.array([*self.target, 0.0, -1.0], dtype=np.float32)
+
+
 @register_scenario
 class CrackerVsBread(Scenario):
     info = SCENARIO_INFOS["cracker_vs_bread"]
+    skills = {
+        "firm_spread": partial(SpreadExpert, press_depth=0.012),
+        "gentle_spread": partial(SpreadExpert, press_depth=0.002),
+    }
 
     def parts(self) -> SceneParts:
         hx, hy = HALF
@@ -101,66 +163,3 @@ class CrackerVsBread(Scenario):
             self.covered[max(0, int(np.floor(lo))) : max(0, min(BINS, int(np.floor(hi)) + 1))] = True
         self._last_x = x
         return StepOutcome(success=bool(self.covered.sum() >= COVER))
-
-    def expert(self, skill: str) -> Expert:
-        if skill == "firm_spread":
-            return SpreadExpert(press_depth=0.012)
-        if skill == "gentle_spread":
-            return SpreadExpert(press_depth=0.002)
-        raise ValueError(f"cracker_vs_bread has no skill {skill!r}; it has ['firm_spread', 'gentle_spread']")
-
-
-class SpreadExpert(Expert):
-    """Hover over the slice, descend until the wrist feels contact, press, stroke along +x.
-
-    A guarded move: the contact height is where the wrist force sensor first feels the slice; the
-    hand is then commanded `press_depth` below it. The position loop (1500 N/m) in series with the
-    slice presses with about kp * depth on a hard cracker (12 mm: ~15 N, firm; 2 mm: ~2 N, gentle)
-    and less on soft bread, which gives way.
-    """
-
-    HOVER = 0.02
-    DESCEND = 0.002  # m per step once close to the surface
-    STROKE_STEP = 0.003  # m per step along the stroke
-
-    def __init__(self, press_depth: float) -> None:
-        self.press_depth = press_depth
-        self.phase = "approach"
-        self.target: np.ndarray | None = None  # set from the hand's position on the first step
-        self.baseline = 0.0
-        self.contact_z = 0.0
-        self.timer = 0
-
-    def _contact_force(self, physics: Physics) -> float:
-        """Upward push on the tool, from the wrist force sensor relative to its free-air reading."""
-        return self.baseline - float(physics.data.sensor("wrist_force").data[2])
-
-    def act(self, physics: Physics) -> np.ndarray:
-        d = physics.data
-        slice_xy = d.body("slice").xpos[:2]
-        pos = physics.sensors.arm_position(d)
-        self.timer += 1
-        if self.target is None:
-            self.target = pos[:3].copy()
-        start = np.array([slice_xy[0] - STROKE / 2 - 0.003, slice_xy[1], TOP_Z + BLADE_BELOW_HAND + self.HOVER])
-        if self.phase == "approach":
-            self.target = self.target + np.clip(start - self.target, -0.015, 0.015)
-            if np.linalg.norm(start - pos[:3]) < 0.003 and self.timer > 10:
-                self.phase, self.timer = "settle", 0
-        elif self.phase == "settle":  # read the free-air wrist force before touching anything
-            self.baseline = float(d.sensor("wrist_force").data[2])
-            if self.timer > 3:
-                self.phase = "descend"
-        elif self.phase == "descend":
-            self.target[2] -= self.DESCEND
-            if self._contact_force(physics) > 0.3:
-                self.contact_z = pos[2]
-                self.target[2] = pos[2]  # start pressing from where the tool met the surface
-                self.phase, self.timer = "press", 0
-        elif self.phase in ("press", "stroke"):
-            self.target[2] = max(self.target[2] - 0.004, self.contact_z - self.press_depth)
-            if self.phase == "press" and self.timer > 5:
-                self.phase = "stroke"
-            if self.phase == "stroke":
-                self.target[0] = min(self.target[0] + self.STROKE_STEP, slice_xy[0] + STROKE / 2 + 0.006)
-        return np.array([*self.target, 0.0, -1.0], dtype=np.float32)

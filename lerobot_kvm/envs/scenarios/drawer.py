@@ -12,6 +12,8 @@ full force into the knob — a sustained damaging force. The safe skill pulls wi
 when effort rises without motion it stops, lifts the drawer front and pulls again.
 """
 
+from functools import partial
+
 import mujoco
 import numpy as np
 
@@ -54,9 +56,83 @@ def contact_force_world(
     return total
 
 
+class PullExpert(Expert):
+    """Grasp the knob from above, then pull along +x.
+
+    Without a force limit the hand target runs ahead along a straight trajectory (the old skill).
+    With one, the target never leads the hand by more than the limit allows; when effort rises
+    while the hand does not move, it eases off, lifts the drawer front and pulls again.
+    """
+
+    GRIP = 0.6
+    PULL_STEP = 0.01
+    PULL_DIST = 0.12
+
+    def __init__(self, force_limit: float | None) -> None:
+        self.force_limit = force_limit
+        self.phase = "approach"
+        self.timer = 0
+        self.settle = 0
+        self.anchor = np.zeros(3)
+        self.lift = 0.0
+        self.stall = 0
+
+    def act(self, physics: Physics) -> np.ndarray:
+        d = physics.data
+        knob = d.geom("knob").xpos
+        pos = physics.sensors.arm_position(d)
+        touch = physics.sensors.touch(d)
+        grasp_z = knob[2] + 0.035
+        target = pos[:3].copy()
+        grip = -1.0
+        self.timer += 1
+        if self.phase == "approach":
+            goal = np.array([knob[0], knob[1], grasp_z + 0.05])
+            target = pos[:3] + np.clip(goal - pos[:3], -0.015, 0.015)
+            if np.linalg.norm(goal - pos[:3]) < 0.004:
+                self.phase = "descend"
+        elif self.phase == "descend":
+            goal = np.array([knob[0], knob[1], grasp_z])
+            target = pos[:3] + np.clip(goal - pos[:3], -0.015, 0.015)
+            if abs(pos[2] - grasp_z) < 0.003:
+                self.phase, self.timer, self.anchor = "close", 0, goal.copy()
+        elif self.phase == "close":
+            target, grip = self.anchor, self.GRIP
+            self.settle = self.settle + 1 if touch.min() > 0.3 else 0
+            if self.settle >= 4 or self.timer > 30:
+                self.phase, self.timer, self.start_x = "pull", 0, pos[0]
+                self.target_x = pos[0]
+        else:
+            grip = self.GRIP
+            goal_x = self.start_x + self.PULL_DIST
+            if self.force_limit is None:
+                self.target_x = min(self.target_x + self.PULL_STEP, goal_x)
+            else:
+                effort = abs(d.actuator_force[0])
+                moved = pos[0] - self.start_x
+                if effort > self.force_limit:
+                    # Resisting: ease off to where the hand actually is and count the stall.
+                    self.target_x = pos[0] + 0.002
+                    self.stall += 1
+                else:
+                    self.target_x = min(self.target_x + self.PULL_STEP * 0.6, goal_x)
+                    self.stall = max(0, self.stall - 1) if moved > 0.01 else self.stall
+                if self.stall >= 3 and self.lift == 0.0 and moved < 0.01:
+                    self.lift = 0.014  # lift the drawer front over whatever holds it
+                    self.timer = 0
+            if self.lift and self.timer < 6:
+                self.target_x = pos[0]  # lift first, then pull
+            target = np.array([self.target_x, self.anchor[1], self.anchor[2] + self.lift])
+        return np.array([*target, 0.0, grip], dtype=np.float32)
+
+
 @register_scenario
 class Drawer(Scenario):
     info = SCENARIO_INFOS["drawer"]
+    skills = {
+        "tracking_pull": partial(PullExpert, force_limit=None),
+        "force_limited_pull": partial(PullExpert, force_limit=10.0),
+    }
 
     def parts(self) -> SceneParts:
         kx, ky, kz = KNOB
@@ -129,80 +205,3 @@ class Drawer(Scenario):
             return StepOutcome(catastrophe="damaging_force")
         opened = physics.data.qpos[self._jx.qposadr[0]]
         return StepOutcome(success=bool(opened >= OPEN_GOAL))
-
-    def expert(self, skill: str) -> Expert:
-        if skill == "tracking_pull":
-            return PullExpert(force_limit=None)
-        if skill == "force_limited_pull":
-            return PullExpert(force_limit=10.0)
-        raise ValueError(f"drawer has no skill {skill!r}; it has ['force_limited_pull', 'tracking_pull']")
-
-
-class PullExpert(Expert):
-    """Grasp the knob from above, then pull along +x.
-
-    Without a force limit the hand target runs ahead along a straight trajectory (the old skill).
-    With one, the target never leads the hand by more than the limit allows; when effort rises
-    while the hand does not move, it eases off, lifts the drawer front and pulls again.
-    """
-
-    GRIP = 0.6
-    PULL_STEP = 0.01
-    PULL_DIST = 0.12
-
-    def __init__(self, force_limit: float | None) -> None:
-        self.force_limit = force_limit
-        self.phase = "approach"
-        self.timer = 0
-        self.settle = 0
-        self.anchor = np.zeros(3)
-        self.lift = 0.0
-        self.stall = 0
-
-    def act(self, physics: Physics) -> np.ndarray:
-        d = physics.data
-        knob = d.geom("knob").xpos
-        pos = physics.sensors.arm_position(d)
-        touch = physics.sensors.touch(d)
-        grasp_z = knob[2] + 0.035
-        target = pos[:3].copy()
-        grip = -1.0
-        self.timer += 1
-        if self.phase == "approach":
-            goal = np.array([knob[0], knob[1], grasp_z + 0.05])
-            target = pos[:3] + np.clip(goal - pos[:3], -0.015, 0.015)
-            if np.linalg.norm(goal - pos[:3]) < 0.004:
-                self.phase = "descend"
-        elif self.phase == "descend":
-            goal = np.array([knob[0], knob[1], grasp_z])
-            target = pos[:3] + np.clip(goal - pos[:3], -0.015, 0.015)
-            if abs(pos[2] - grasp_z) < 0.003:
-                self.phase, self.timer, self.anchor = "close", 0, goal.copy()
-        elif self.phase == "close":
-            target, grip = self.anchor, self.GRIP
-            self.settle = self.settle + 1 if touch.min() > 0.3 else 0
-            if self.settle >= 4 or self.timer > 30:
-                self.phase, self.timer, self.start_x = "pull", 0, pos[0]
-                self.target_x = pos[0]
-        else:
-            grip = self.GRIP
-            goal_x = self.start_x + self.PULL_DIST
-            if self.force_limit is None:
-                self.target_x = min(self.target_x + self.PULL_STEP, goal_x)
-            else:
-                effort = abs(d.actuator_force[0])
-                moved = pos[0] - self.start_x
-                if effort > self.force_limit:
-                    # Resisting: ease off to where the hand actually is and count the stall.
-                    self.target_x = pos[0] + 0.002
-                    self.stall += 1
-                else:
-                    self.target_x = min(self.target_x + self.PULL_STEP * 0.6, goal_x)
-                    self.stall = max(0, self.stall - 1) if moved > 0.01 else self.stall
-                if self.stall >= 3 and self.lift == 0.0 and moved < 0.01:
-                    self.lift = 0.014  # lift the drawer front over whatever holds it
-                    self.timer = 0
-            if self.lift and self.timer < 6:
-                self.target_x = pos[0]  # lift first, then pull
-            target = np.array([self.target_x, self.anchor[1], self.anchor[2] + self.lift])
-        return np.array([*target, 0.0, grip], dtype=np.float32)

@@ -1,12 +1,15 @@
 """C11 stone vs egg: a firm grasp that lifts a stone crushes an egg of the same look."""
 
+from functools import partial
+
 import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
 from ..experts import GraspLiftExpert
+from ..grasp_lift import GraspLiftScenario
 from ..physics import Physics, geom_ids, max_pair_force, set_free_body_pose
-from ..scenario import Scenario, StepOutcome, register_scenario
+from ..scenario import StepOutcome, register_scenario
 from ..scene import SceneParts
 
 RADII = (0.024, 0.024, 0.031)
@@ -17,9 +20,10 @@ LIFT_HEIGHT = 0.05
 
 
 @register_scenario
-class EggVsStone(Scenario):
+class EggVsStone(GraspLiftScenario):
     info = SCENARIO_INFOS["egg_vs_stone"]
-    grips = {"firm_grasp": 0.75, "gentle_grasp": 0.15}
+    skills = {"firm_grasp": partial(GraspLiftExpert, grip=0.75), "gentle_grasp": partial(GraspLiftExpert, grip=0.15)}
+    body, rest_z, lift_height = "object", RADII[2], LIFT_HEIGHT
 
     def parts(self) -> SceneParts:
         r = " ".join(str(v) for v in RADII)
@@ -33,6 +37,7 @@ class EggVsStone(Scenario):
         )
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+        super().reset(model, data, variant, rng)
         self._object = geom_ids(model, "object")
         self._fingers = (geom_ids(model, "finger_l"), geom_ids(model, "finger_r"))
         self._gid = next(iter(self._object))
@@ -42,7 +47,6 @@ class EggVsStone(Scenario):
         rgb = (EGG_RGB if egg else STONE_RGB) + rng.uniform(-0.015, 0.015, 3)
         model.geom_rgba[self._gid] = [*rgb, 1.0]
         self._fragile = egg
-        self._held = 0
         xy = rng.uniform(-0.015, 0.015, 2)
         set_free_body_pose(model, data, "object", [xy[0], xy[1], RADII[2]], yaw=rng.uniform(-np.pi, np.pi))
 
@@ -51,12 +55,4 @@ class EggVsStone(Scenario):
         if self._fragile and max_pair_force(d, m, self._object, self._fingers) > BREAK_FORCE:
             m.geom_rgba[self._gid] = [0.95, 0.75, 0.15, 1.0]  # yolk: the shell is broken
             return StepOutcome(catastrophe="break")
-        lifted = d.xpos[self._bid][2] > RADII[2] + LIFT_HEIGHT
-        held = physics.sensors.touch(d).min() > 0.05
-        self._held = self._held + 1 if (lifted and held) else 0
-        return StepOutcome(success=self._held >= 5)
-
-    def expert(self, skill: str) -> GraspLiftExpert:
-        if skill not in self.grips:
-            raise ValueError(f"egg_vs_stone has no skill {skill!r}; it has {sorted(self.grips)}")
-        return GraspLiftExpert("object", grip=self.grips[skill])
+        return self.held_aloft(physics)

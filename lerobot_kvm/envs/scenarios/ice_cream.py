@@ -10,6 +10,8 @@ cream without splashing. How far the scoop sinks under the same push and how the
 show the difference in the wrist force and efforts (rule 3).
 """
 
+from functools import partial
+
 import mujoco
 import numpy as np
 
@@ -55,6 +57,7 @@ def _lattice() -> np.ndarray:
 
 
 LATTICE = _lattice()
+SCOOP_IN = -(TUB_IN[0] - BOWL[0] - 4 * BOWL[2])  # where the scoop goes in: its back wall clear of the tub's
 
 
 class ScoopExpert(Expert):
@@ -97,6 +100,31 @@ class ScoopExpert(Expert):
 @register_scenario
 class IceCream(Scenario):
     info = SCENARIO_INFOS["ice_cream"]
+    skills = {
+        "forceful_scoop": partial(
+            ScoopExpert,
+            [
+                ("hover", SCOOP_IN, BED_TOP + 0.02, 0.0, 0.015, 0.1, HARD),
+                ("press", SCOOP_IN, -0.015, 0.0, FAST, 0.1, HARD),  # aims below the floor: pushes down ~35 N
+                ("sweep", SCOOP_IN + 0.022, -0.015, 0.0, FAST, 0.1, HARD),
+                ("twist", SCOOP_IN + 0.016, 0.015, -0.6, 0.025, 0.08, HARD),  # turn the scoop up inside the ice cream
+                ("lift", SCOOP_IN + 0.016, TUB_H + 0.04, -0.6, 0.02, 0.08, HARD),
+                ("hold", SCOOP_IN + 0.016, TUB_H + 0.04, -0.6, 0.02, 0.08, HARD),
+            ],
+        ),
+        "gentle_scoop": partial(
+            ScoopExpert,
+            [
+                ("hover", SCOOP_IN, BED_TOP + 0.02, 0.0, 0.015, 0.05, LIGHT),
+                ("dip", SCOOP_IN, 0.002, 0.0, SLOW, 0.05, LIGHT),
+                ("drag", SCOOP_IN + 0.02, 0.002, 0.0, SLOW, 0.05, LIGHT),
+                ("raise", SCOOP_IN + 0.02, BED_TOP, 0.0, SLOW, 0.04, LIGHT),  # up to the surface before turning
+                ("twist", SCOOP_IN + 0.02, BED_TOP, -0.6, SLOW, 0.04, LIGHT),
+                ("lift", SCOOP_IN + 0.02, TUB_H + 0.03, -0.6, 0.005, 0.04, LIGHT),
+                ("hold", SCOOP_IN + 0.02, TUB_H + 0.03, -0.6, 0.005, 0.04, LIGHT),
+            ],
+        ),
+    }
 
     def parts(self) -> SceneParts:
         wx, wy = TUB_IN[0] + TUB_WALL, TUB_IN[1] + TUB_WALL
@@ -191,30 +219,3 @@ class IceCream(Scenario):
         above = d.geom_xpos[self._floor][2] > TUB_H + 0.01
         self._done = self._done + 1 if above and self.in_scoop(d) >= MIN_SCOOPED else 0
         return StepOutcome(success=self._done >= 3)
-
-    def expert(self, skill: str) -> ScoopExpert:
-        back = -(TUB_IN[0] - BOWL[0] - 4 * BOWL[2])  # where the scoop goes in: its back wall clear of the tub's
-        if skill == "forceful_scoop":
-            return ScoopExpert(
-                [
-                    ("hover", back, BED_TOP + 0.02, 0.0, 0.015, 0.1, HARD),
-                    ("press", back, -0.015, 0.0, FAST, 0.1, HARD),  # aims below the floor: pushes down ~35 N
-                    ("sweep", back + 0.022, -0.015, 0.0, FAST, 0.1, HARD),
-                    ("twist", back + 0.016, 0.015, -0.6, 0.025, 0.08, HARD),  # turn the scoop up inside the ice cream
-                    ("lift", back + 0.016, TUB_H + 0.04, -0.6, 0.02, 0.08, HARD),
-                    ("hold", back + 0.016, TUB_H + 0.04, -0.6, 0.02, 0.08, HARD),
-                ]
-            )
-        if skill == "gentle_scoop":
-            return ScoopExpert(
-                [
-                    ("hover", back, BED_TOP + 0.02, 0.0, 0.015, 0.05, LIGHT),
-                    ("dip", back, 0.002, 0.0, SLOW, 0.05, LIGHT),
-                    ("drag", back + 0.02, 0.002, 0.0, SLOW, 0.05, LIGHT),
-                    ("raise", back + 0.02, BED_TOP, 0.0, SLOW, 0.04, LIGHT),  # up to the surface before turning
-                    ("twist", back + 0.02, BED_TOP, -0.6, SLOW, 0.04, LIGHT),
-                    ("lift", back + 0.02, TUB_H + 0.03, -0.6, 0.005, 0.04, LIGHT),
-                    ("hold", back + 0.02, TUB_H + 0.03, -0.6, 0.005, 0.04, LIGHT),
-                ]
-            )
-        raise ValueError(f"ice_cream has no skill {skill!r}; it has ['forceful_scoop', 'gentle_scoop']")

@@ -7,13 +7,16 @@ all the way in and its layers yield (MuJoCo joint-spring plasticity, `springyiel
 flattening permanently, read from `data.plastic`.
 """
 
+from functools import partial
+
 import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
 from ..experts import GraspLiftExpert
+from ..grasp_lift import GraspLiftScenario
 from ..physics import Physics, set_free_body_pose
-from ..scenario import Scenario, StepOutcome, register_scenario
+from ..scenario import StepOutcome, register_scenario
 from ..scene import SceneParts
 
 RADIUS = 0.035
@@ -36,9 +39,10 @@ CRUSH = 0.003  # m of permanent flattening that counts as a crushed roll
 
 
 @register_scenario
-class PaperTowelRoll(Scenario):
+class PaperTowelRoll(GraspLiftScenario):
     info = SCENARIO_INFOS["paper_towel_roll"]
-    grips = {"firm_grasp": 0.75, "gentle_grasp": 0.15}
+    skills = {"firm_grasp": partial(GraspLiftExpert, grip=0.75), "gentle_grasp": partial(GraspLiftExpert, grip=0.15)}
+    body, rest_z, lift_height, grasp = "roll", HALF_HEIGHT, LIFT_HEIGHT, {"grasp_height": GRASP_HEIGHT}
 
     def parts(self) -> SceneParts:
         r, hh = RADIUS, HALF_HEIGHT
@@ -71,6 +75,7 @@ class PaperTowelRoll(Scenario):
         )
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+        super().reset(model, data, variant, rng)
         self._bid = model.body("roll").id
         mass, stiffness, travel, yield_ = ROLL[variant]
         model.body_mass[self._bid] = mass
@@ -90,7 +95,6 @@ class PaperTowelRoll(Scenario):
         model.geom_rgba[model.geom("roll_core").id] = core
         xy = rng.uniform(-0.012, 0.012, 2)
         set_free_body_pose(model, data, "roll", [xy[0], xy[1], HALF_HEIGHT], yaw=rng.uniform(-0.15, 0.15))
-        self._held = 0
         self.flattening = 0.0
 
     def evaluate(self, physics: Physics) -> StepOutcome:
@@ -98,12 +102,4 @@ class PaperTowelRoll(Scenario):
         self.flattening = max(abs(float(d.plastic[a])) for a in self._plastic)
         if self.flattening > CRUSH:
             return StepOutcome(catastrophe="crush")
-        lifted = d.xpos[self._bid][2] > HALF_HEIGHT + LIFT_HEIGHT
-        held = physics.sensors.touch(d).min() > 0.05
-        self._held = self._held + 1 if (lifted and held) else 0
-        return StepOutcome(success=self._held >= 5)
-
-    def expert(self, skill: str) -> GraspLiftExpert:
-        if skill not in self.grips:
-            raise ValueError(f"paper_towel_roll has no skill {skill!r}; it has {sorted(self.grips)}")
-        return GraspLiftExpert("roll", grip=self.grips[skill], grasp_height=GRASP_HEIGHT)
+        return self.held_aloft(physics)

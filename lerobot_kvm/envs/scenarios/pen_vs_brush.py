@@ -7,6 +7,9 @@ their elastic limit above about 1 N (MuJoCo joint-spring plasticity, `springyiel
 splayed, read from `data.plastic`. A light, force-regulated touch draws with either tool.
 """
 
+from functools import partial
+from typing import Any
+
 import mujoco
 import numpy as np
 
@@ -30,9 +33,68 @@ TIP = {"prior": (1000.0, 0.0015, 1.0), "shifted": (250.0, 0.012, 0.004)}
 BENT = 0.0015  # m of permanent set that counts as damaged bristles
 
 
+class StrokeExpert(Expert):
+    """Hover over the line's start, descend until the wrist feels contact, press, draw along +x.
+
+    A guarded move: the contact height is where the wrist force sensor first feels the paper; the
+    hand is then commanded `press_depth` below it. The position loop (1500 N/m) in series with the
+    tool's tip presses with about 1.2 N (2 mm, light) or up to ~8 N (6 mm, pressing) on the stiff
+    ballpoint, and far less on the soft brush, whose bristles give way.
+    """
+
+    HOVER = 0.012
+    DESCEND = 0.001  # m per step near the paper
+    STROKE_STEP = 0.003
+
+    def __init__(self, scenario: "PenVsBrush", press_depth: float) -> None:
+        self.scenario = scenario
+        self.press_depth = press_depth
+        self.phase = "approach"
+        self.target: np.ndarray | None = None  # set from the hand's position on the first step
+        self.baseline = 0.0
+        self.contact_z = 0.0
+        self.timer = 0
+
+    def _contact_force(self, physics: Physics) -> float:
+        """Upward push on the tool, from the wrist force sensor relative to its reading while descending."""
+        return self.baseline - float(physics.data.sensor("wrist_force").data[2])
+
+    def act(self, physics: Physics) -> np.ndarray:
+        d = physics.data
+        pos = physics.sensors.arm_position(d)
+        self.timer += 1
+        if self.target is None:
+            self.target = pos[:3].copy()
+        start = self.scenario.start  # where the line is to begin (the demonstrator sees the sheet)
+        hover = np.array([start[0] - 0.002, start[1], PAPER_TOP + TIP_BELOW_HAND + self.HOVER])
+        if self.phase == "approach":
+            self.target = self.target + np.clip(hover - self.target, -0.015, 0.015)
+            if np.linalg.norm(hover - pos[:3]) < 0.003 and self.timer > 10:
+                self.phase, self.timer = "descend", 0
+        elif self.phase == "descend":
+            self.target[2] -= self.DESCEND
+            if self.timer == 4:  # free-air reading while moving, well above the paper
+                self.baseline = float(d.sensor("wrist_force").data[2])
+            if self.timer > 4 and self._contact_force(physics) > 0.08:
+                self.contact_z = pos[2]
+                self.target[2] = pos[2]  # start pressing from where the tool met the surface
+                self.phase, self.timer = "press", 0
+        elif self.phase in ("press", "stroke"):
+            self.target[2] = max(self.target[2] - 0.003, self.contact_z - self.press_depth)
+            if self.phase == "press" and self.timer > 4:
+                self.phase = "stroke"
+            if self.phase == "stroke":
+                self.target[0] = min(self.target[0] + self.STROKE_STEP, start[0] + STROKE + 0.006)
+        return np.array([*self.target, 0.0, -1.0], dtype=np.float32)
+
+
 @register_scenario
 class PenVsBrush(Scenario):
     info = SCENARIO_INFOS["pen_vs_brush"]
+    skills = {
+        "press_stroke": partial(StrokeExpert, press_depth=0.006),
+        "light_stroke": partial(StrokeExpert, press_depth=0.002),
+    }
 
     def parts(self) -> SceneParts:
         hx, hy, hz = PAPER_HALF
@@ -88,64 +150,5 @@ class PenVsBrush(Scenario):
         self._last_x = x
         return StepOutcome(success=bool(self.covered.sum() >= COVER))
 
-    def expert(self, skill: str) -> Expert:
-        if skill == "press_stroke":
-            return StrokeExpert(self, press_depth=0.006)
-        if skill == "light_stroke":
-            return StrokeExpert(self, press_depth=0.002)
-        raise ValueError(f"pen_vs_brush has no skill {skill!r}; it has ['light_stroke', 'press_stroke']")
-
-
-class StrokeExpert(Expert):
-    """Hover over the line's start, descend until the wrist feels contact, press, draw along +x.
-
-    A guarded move: the contact height is where the wrist force sensor first feels the paper; the
-    hand is then commanded `press_depth` below it. The position loop (1500 N/m) in series with the
-    tool's tip presses with about 1.2 N (2 mm, light) or up to ~8 N (6 mm, pressing) on the stiff
-    ballpoint, and far less on the soft brush, whose bristles give way.
-    """
-
-    HOVER = 0.012
-    DESCEND = 0.001  # m per step near the paper
-    STROKE_STEP = 0.003
-
-    def __init__(self, scenario: PenVsBrush, press_depth: float) -> None:
-        self.scenario = scenario
-        self.press_depth = press_depth
-        self.phase = "approach"
-        self.target: np.ndarray | None = None  # set from the hand's position on the first step
-        self.baseline = 0.0
-        self.contact_z = 0.0
-        self.timer = 0
-
-    def _contact_force(self, physics: Physics) -> float:
-        """Upward push on the tool, from the wrist force sensor relative to its reading while descending."""
-        return self.baseline - float(physics.data.sensor("wrist_force").data[2])
-
-    def act(self, physics: Physics) -> np.ndarray:
-        d = physics.data
-        pos = physics.sensors.arm_position(d)
-        self.timer += 1
-        if self.target is None:
-            self.target = pos[:3].copy()
-        start = self.scenario.start  # where the line is to begin (the demonstrator sees the sheet)
-        hover = np.array([start[0] - 0.002, start[1], PAPER_TOP + TIP_BELOW_HAND + self.HOVER])
-        if self.phase == "approach":
-            self.target = self.target + np.clip(hover - self.target, -0.015, 0.015)
-            if np.linalg.norm(hover - pos[:3]) < 0.003 and self.timer > 10:
-                self.phase, self.timer = "descend", 0
-        elif self.phase == "descend":
-            self.target[2] -= self.DESCEND
-            if self.timer == 4:  # free-air reading while moving, well above the paper
-                self.baseline = float(d.sensor("wrist_force").data[2])
-            if self.timer > 4 and self._contact_force(physics) > 0.08:
-                self.contact_z = pos[2]
-                self.target[2] = pos[2]  # start pressing from where the tool met the surface
-                self.phase, self.timer = "press", 0
-        elif self.phase in ("press", "stroke"):
-            self.target[2] = max(self.target[2] - 0.003, self.contact_z - self.press_depth)
-            if self.phase == "press" and self.timer > 4:
-                self.phase = "stroke"
-            if self.phase == "stroke":
-                self.target[0] = min(self.target[0] + self.STROKE_STEP, start[0] + STROKE + 0.006)
-        return np.array([*self.target, 0.0, -1.0], dtype=np.float32)
+    def expert_context(self) -> dict[str, Any]:
+        return {"scenario": self}  # the demonstrator sees where the line is to begin

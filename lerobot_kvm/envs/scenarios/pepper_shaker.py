@@ -15,6 +15,9 @@ tilt, give small gentle shakes. The shift shows in the wrist force and torque: a
 starts losing weight (and shifting its load) at a much smaller tilt.
 """
 
+from functools import partial
+from typing import Any
+
 import mujoco
 import numpy as np
 
@@ -43,9 +46,76 @@ def _quat_y(angle: float) -> np.ndarray:
     return np.array([np.cos(angle / 2), 0.0, np.sin(angle / 2), 0.0])
 
 
+class ShakeExpert(Expert):
+    """Move over the plate, tilt (pitch < 0 turns the top down), shake or not, turn back up.
+
+    Old skill: tilt fast to full turn, give a fixed number of vigorous shakes, turn back.
+    Safe skill: tilt slowly, turn back as soon as pepper comes out; at full turn with nothing
+    coming, give small shakes until it does.
+    """
+
+    FULL_TILT = -1.65
+    HOVER_Z = 0.16
+
+    def __init__(self, scenario: "PepperShaker", gentle: bool) -> None:
+        self.scenario = scenario  # the demonstrator sees the plate and the pepper that came out
+        self.gentle = gentle
+        self.phase = "move"
+        self.timer = 0
+        self.pitch = 0.0
+        self.shakes = 0
+        self.out_before = 0
+        self.back_from: float | None = None
+
+    def act(self, physics: Physics) -> np.ndarray:
+        sc = self.scenario
+        d = physics.data
+        pos = physics.sensors.arm_position(d)
+        plate = d.xpos[sc._plate]
+        goal = np.array([plate[0] - 0.035, plate[1], self.HOVER_Z])
+        target = pos[:3] + np.clip(goal - pos[:3], -0.015, 0.015)
+        dz = 0.0
+        self.timer += 1
+        out = sc.count_out(d)
+        if self.phase == "move":
+            if np.linalg.norm(goal - pos[:3]) < 0.004 and self.timer > 6:
+                self.phase, self.timer = "tilt", 0
+        elif self.phase == "tilt":
+            rate = (0.03 if self.pitch < -0.4 else 0.1) if self.gentle else 0.25
+            self.pitch = max(self.FULL_TILT, self.pitch - rate)
+            if self.gentle and out > self.out_before:
+                self.phase, self.timer = "back", 0
+            elif self.pitch <= self.FULL_TILT and self.timer > 2:
+                self.phase, self.timer = "shake", 0
+        elif self.phase == "shake":
+            # One shake = a quick dip and return of the hand (4 control steps).
+            amp = 0.02 if self.gentle else 0.035
+            dz = -amp if self.timer % 4 in (1, 2) else 0.0
+            if self.timer % 4 == 0:
+                self.shakes += 1
+            if self.gentle and out >= MIN_ON_PLATE or not self.gentle and self.shakes >= 3:
+                self.phase, self.timer = "back", 0
+            if self.gentle and self.shakes >= 20:
+                self.phase, self.timer = "back", 0
+        else:  # back upright and hold
+            if self.gentle and out < MIN_ON_PLATE:
+                # Not enough yet: ease back a little, let the flow stop, then tilt slowly again.
+                if self.back_from is None:
+                    self.back_from = self.pitch
+                self.pitch = min(self.back_from + 0.3, self.pitch + 0.2)
+                if self.timer > 5:
+                    self.phase, self.timer, self.out_before, self.back_from = "tilt", 0, out, None
+            else:
+                self.pitch = min(0.0, self.pitch + (0.2 if self.gentle else 0.3))
+        if self.phase != "move":
+            target = goal + [0.0, 0.0, dz]
+        return np.array([*target, self.pitch, -1.0], dtype=np.float32)
+
+
 @register_scenario
 class PepperShaker(Scenario):
     info = SCENARIO_INFOS["pepper_shaker"]
+    skills = {"tilt_and_shake": partial(ShakeExpert, gentle=False), "slow_tilt": partial(ShakeExpert, gentle=True)}
 
     def parts(self) -> SceneParts:
         rgb = " ".join(f"{v:.3f}" for v in _SHAKER_RGB)
@@ -160,75 +230,5 @@ class PepperShaker(Scenario):
             )
         return self._dofs
 
-    def expert(self, skill: str) -> Expert:
-        if skill == "tilt_and_shake":
-            return ShakeExpert(self, gentle=False)
-        if skill == "slow_tilt":
-            return ShakeExpert(self, gentle=True)
-        raise ValueError(f"pepper_shaker has no skill {skill!r}; it has ['slow_tilt', 'tilt_and_shake']")
-
-
-class ShakeExpert(Expert):
-    """Move over the plate, tilt (pitch < 0 turns the top down), shake or not, turn back up.
-
-    Old skill: tilt fast to full turn, give a fixed number of vigorous shakes, turn back.
-    Safe skill: tilt slowly, turn back as soon as pepper comes out; at full turn with nothing
-    coming, give small shakes until it does.
-    """
-
-    FULL_TILT = -1.65
-    HOVER_Z = 0.16
-
-    def __init__(self, scenario: PepperShaker, gentle: bool) -> None:
-        self.scenario = scenario  # the demonstrator sees the plate and the pepper that came out
-        self.gentle = gentle
-        self.phase = "move"
-        self.timer = 0
-        self.pitch = 0.0
-        self.shakes = 0
-        self.out_before = 0
-        self.back_from: float | None = None
-
-    def act(self, physics: Physics) -> np.ndarray:
-        sc = self.scenario
-        d = physics.data
-        pos = physics.sensors.arm_position(d)
-        plate = d.xpos[sc._plate]
-        goal = np.array([plate[0] - 0.035, plate[1], self.HOVER_Z])
-        target = pos[:3] + np.clip(goal - pos[:3], -0.015, 0.015)
-        dz = 0.0
-        self.timer += 1
-        out = sc.count_out(d)
-        if self.phase == "move":
-            if np.linalg.norm(goal - pos[:3]) < 0.004 and self.timer > 6:
-                self.phase, self.timer = "tilt", 0
-        elif self.phase == "tilt":
-            rate = (0.03 if self.pitch < -0.4 else 0.1) if self.gentle else 0.25
-            self.pitch = max(self.FULL_TILT, self.pitch - rate)
-            if self.gentle and out > self.out_before:
-                self.phase, self.timer = "back", 0
-            elif self.pitch <= self.FULL_TILT and self.timer > 2:
-                self.phase, self.timer = "shake", 0
-        elif self.phase == "shake":
-            # One shake = a quick dip and return of the hand (4 control steps).
-            amp = 0.02 if self.gentle else 0.035
-            dz = -amp if self.timer % 4 in (1, 2) else 0.0
-            if self.timer % 4 == 0:
-                self.shakes += 1
-            if self.gentle and out >= MIN_ON_PLATE or not self.gentle and self.shakes >= 3:
-                self.phase, self.timer = "back", 0
-            if self.gentle and self.shakes >= 20:
-                self.phase, self.timer = "back", 0
-        else:  # back upright and hold
-            if self.gentle and out < MIN_ON_PLATE:
-                # Not enough yet: ease back a little, let the flow stop, then tilt slowly again.
-                if self.back_from is None:
-                    self.back_from = self.pitch
-                self.pitch = min(self.back_from + 0.3, self.pitch + 0.2)
-                if self.timer > 5:
-                    self.phase, self.timer, self.out_before, self.back_from = "tilt", 0, out, None
-            else:
-                self.pitch = min(0.0, self.pitch + (0.2 if self.gentle else 0.3))
-        if self.phase != "move":
-            target = goal + [0.0, 0.0, dz]
-        return np.array([*target, self.pitch, -1.0], dtype=np.float32)
+    def expert_context(self) -> dict[str, Any]:
+        return {"scenario": self}  # the demonstrator sees the plate and the pepper that came out

@@ -9,6 +9,8 @@ table moves both intact. Only the hidden bending range of the hinges changes bet
 wrist torque of the lifted slice shows the difference (rule 3).
 """
 
+from functools import partial
+
 import mujoco
 import numpy as np
 
@@ -91,7 +93,10 @@ def _segments(i: int) -> str:
 @register_scenario
 class Pizza(Scenario):
     info = SCENARIO_INFOS["pizza"]
-    skills = {"pinch_lift": (0.5, 0.18, 0.01), "supported_slide": (0.5, 0.0, 0.005)}  # grip, lift, carry m/step
+    skills = {
+        "pinch_lift": partial(CrustPinchExpert, grip=0.5, lift=0.18, carry_step=0.01),
+        "supported_slide": partial(CrustPinchExpert, grip=0.5, lift=0.0, carry_step=0.005),
+    }
 
     def parts(self) -> SceneParts:
         c = " ".join(str(v) for v in CRUST)
@@ -166,8 +171,3 @@ class Pizza(Scenario):
         placed = np.linalg.norm(crust[:2] - TARGET) < GOAL_TOL and crust[2] < CRUST[2] + 0.004 and flat
         self._done = self._done + 1 if placed else 0
         return StepOutcome(success=self._done >= 3)
-
-    def expert(self, skill: str) -> CrustPinchExpert:
-        if skill not in self.skills:
-            raise ValueError(f"pizza has no skill {skill!r}; it has {sorted(self.skills)}")
-        return CrustPinchExpert(*self.skills[skill])

@@ -32,89 +32,6 @@ PLATE = {"prior": (0.17, 0.03, True, 0.05), "shifted": (0.025, 0.005, False, 0.0
 X0 = 0.03  # plate centre on the stand
 
 
-@register_scenario
-class Plate(Scenario):
-    info = SCENARIO_INFOS["plate"]
-
-    def parts(self) -> SceneParts:
-        rgb = " ".join(f"{v:.3f}" for v in PLATE_RGB["prior"])
-        strip_half = (HINGE_Y + HALF_Y) / 2
-        main_half = (HALF_Y - HINGE_Y) / 2
-        return SceneParts(
-            worldbody=f"""
-    <geom name="stand" type="cylinder" size="0.03 {STAND_H / 2}" pos="{X0} 0 {STAND_H / 2}" rgba="0.45 0.3 0.2 1"/>
-    <body name="plate_rim" pos="{X0} {-HALF_Y + strip_half} {STAND_H + FLOOR}">
-      <freejoint name="plate_rim"/>
-      <geom name="plate_rim" type="box" size="{HALF_X} {strip_half} {FLOOR}" mass="0.03" priority="1"
-            friction="0.6 0.005 0.0001" rgba="{rgb} 1"/>
-      <geom name="plate_lip" type="box" size="{HALF_X - 0.005} {LIP_T} {LIP_H}" pos="0 {-strip_half + LIP_T} {LIP_H}"
-            mass="0.005" priority="1" friction="1.0 0.01 0.001" solref="0.004 1" rgba="{rgb} 1"/>
-      <body name="plate" pos="0 {strip_half} 0">
-        <joint name="plate_fold" type="hinge" axis="1 0 0" stiffness="0.05" damping="0.005" range="-1.5 1.5"/>
-        <geom name="plate" type="box" size="{HALF_X} {main_half} {FLOOR}" pos="0 {main_half} 0" mass="0.17"
-              priority="1" friction="0.6 0.005 0.0001" rgba="{rgb} 1"/>
-        <geom name="plate_rim_far" type="box" size="{HALF_X} 0.002 0.004" pos="0 {2 * main_half - 0.002} 0.004"
-              contype="0" conaffinity="0" rgba="{rgb} 1"/>
-      </body>
-    </body>
-    <body name="cake" pos="{X0} 0.02 {STAND_H + 2 * FLOOR + CAKE[2]}">
-      <freejoint name="cake"/>
-      <geom name="cake" type="box" size="{CAKE[0]} {CAKE[1]} {CAKE[2]}" mass="0.06" priority="1"
-            friction="0.5 0.005 0.0001" rgba="0.55 0.32 0.2 1"/>
-      <geom name="cake_icing" type="box" size="{CAKE[0]} {CAKE[1]} 0.002" pos="0 0 {CAKE[2]}" contype="0"
-            conaffinity="0" rgba="0.95 0.9 0.85 1"/>
-    </body>""",
-            equality='<joint name="plate_rigid" joint1="plate_fold" polycoef="0 0 0 0 0" solref="0.005 1"/>',
-        )
-
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
-        main, strip, locked, stiffness = PLATE[variant]
-        self._plate = model.body("plate").id
-        self._rim = model.body("plate_rim").id
-        self._cake = model.body("cake").id
-        model.body_mass[self._plate] = main
-        model.body_mass[self._rim] = strip
-        model.body_inertia[self._plate] = main / 3 * np.array([HALF_Y**2, HALF_X**2, HALF_X**2 + HALF_Y**2]) / 2
-        model.body_inertia[self._rim] = strip / 3 * np.array([0.0002, HALF_X**2, HALF_X**2])
-        model.jnt_stiffness[model.joint("plate_fold").id] = stiffness
-        mujoco.mj_setConst(model, data)  # subtree masses and constraint weights follow the new masses
-        data.eq_active[model.equality("plate_rigid").id] = locked
-        rgb = PLATE_RGB[variant] + rng.uniform(-0.02, 0.02, 3)
-        for name in ("plate_rim", "plate_lip", "plate", "plate_rim_far"):
-            model.geom_rgba[model.geom(name).id] = [*np.clip(rgb, 0, 1), 1.0]
-        dx = rng.uniform(-0.01, 0.01)
-        strip_half = (HINGE_Y + HALF_Y) / 2
-        set_free_body_pose(model, data, "plate_rim", [X0 + dx, -HALF_Y + strip_half, STAND_H + FLOOR])
-        cake_xy = [X0 + dx + rng.uniform(-0.012, 0.012), 0.02 + rng.uniform(-0.01, 0.01)]
-        set_free_body_pose(model, data, "cake", [*cake_xy, STAND_H + 2 * FLOOR + CAKE[2]], yaw=rng.uniform(-0.3, 0.3))
-        self._held = 0
-
-    def cake_on_plate(self, data: mujoco.MjData) -> bool:
-        """The cake rests on the main plate: above its floor and within its outline (in its frame)."""
-        rel = data.xmat[self._plate].reshape(3, 3).T @ (data.xpos[self._cake] - data.xpos[self._plate])
-        main_half = (HALF_Y - HINGE_Y) / 2
-        return abs(rel[0]) < HALF_X and -0.005 < rel[1] < 2 * main_half and 0.0 < rel[2] < 0.03
-
-    def evaluate(self, physics: Physics) -> StepOutcome:
-        d = physics.data
-        plate_z = d.xpos[self._rim][2]
-        if not self.cake_on_plate(d) and d.xpos[self._cake][2] < plate_z - 0.01:
-            return StepOutcome(catastrophe="drop")  # the cake slid off the plate
-        if plate_z < STAND_H - 0.01:
-            return StepOutcome(catastrophe="drop")  # the plate itself fell
-        lifted = min(plate_z, d.xpos[self._plate][2]) > STAND_H + FLOOR + LIFT
-        level = abs(np.arcsin(np.clip(d.xmat[self._plate][7], -1, 1))) < np.deg2rad(20)
-        self._held = self._held + 1 if (lifted and level and self.cake_on_plate(d)) else 0
-        return StepOutcome(success=self._held >= 5)
-
-    def expert(self, skill: str) -> Expert:
-        if skill == "rim_lift":
-            return RimLiftExpert()
-        if skill == "support_lift":
-            return SupportLiftExpert()
-        raise ValueError(f"plate has no skill {skill!r}; it has ['rim_lift', 'support_lift']")
-
-
 def _step_towards(target: np.ndarray, goal: np.ndarray, step: float) -> np.ndarray:
     return target + np.clip(goal - target, -step, step)
 
@@ -197,3 +114,80 @@ class SupportLiftExpert(Expert):
         else:
             self.target[2] = min(self.target[2] + 0.006, tine_z + LIFT + 0.03)
         return np.array([*self.target, pitch, -1.0], dtype=np.float32)
+
+
+@register_scenario
+class Plate(Scenario):
+    info = SCENARIO_INFOS["plate"]
+    skills = {"rim_lift": RimLiftExpert, "support_lift": SupportLiftExpert}
+
+    def parts(self) -> SceneParts:
+        rgb = " ".join(f"{v:.3f}" for v in PLATE_RGB["prior"])
+        strip_half = (HINGE_Y + HALF_Y) / 2
+        main_half = (HALF_Y - HINGE_Y) / 2
+        return SceneParts(
+            worldbody=f"""
+    <geom name="stand" type="cylinder" size="0.03 {STAND_H / 2}" pos="{X0} 0 {STAND_H / 2}" rgba="0.45 0.3 0.2 1"/>
+    <body name="plate_rim" pos="{X0} {-HALF_Y + strip_half} {STAND_H + FLOOR}">
+      <freejoint name="plate_rim"/>
+      <geom name="plate_rim" type="box" size="{HALF_X} {strip_half} {FLOOR}" mass="0.03" priority="1"
+            friction="0.6 0.005 0.0001" rgba="{rgb} 1"/>
+      <geom name="plate_lip" type="box" size="{HALF_X - 0.005} {LIP_T} {LIP_H}" pos="0 {-strip_half + LIP_T} {LIP_H}"
+            mass="0.005" priority="1" friction="1.0 0.01 0.001" solref="0.004 1" rgba="{rgb} 1"/>
+      <body name="plate" pos="0 {strip_half} 0">
+        <joint name="plate_fold" type="hinge" axis="1 0 0" stiffness="0.05" damping="0.005" range="-1.5 1.5"/>
+        <geom name="plate" type="box" size="{HALF_X} {main_half} {FLOOR}" pos="0 {main_half} 0" mass="0.17"
+              priority="1" friction="0.6 0.005 0.0001" rgba="{rgb} 1"/>
+        <geom name="plate_rim_far" type="box" size="{HALF_X} 0.002 0.004" pos="0 {2 * main_half - 0.002} 0.004"
+              contype="0" conaffinity="0" rgba="{rgb} 1"/>
+      </body>
+    </body>
+    <body name="cake" pos="{X0} 0.02 {STAND_H + 2 * FLOOR + CAKE[2]}">
+      <freejoint name="cake"/>
+      <geom name="cake" type="box" size="{CAKE[0]} {CAKE[1]} {CAKE[2]}" mass="0.06" priority="1"
+            friction="0.5 0.005 0.0001" rgba="0.55 0.32 0.2 1"/>
+      <geom name="cake_icing" type="box" size="{CAKE[0]} {CAKE[1]} 0.002" pos="0 0 {CAKE[2]}" contype="0"
+            conaffinity="0" rgba="0.95 0.9 0.85 1"/>
+    </body>""",
+            equality='<joint name="plate_rigid" joint1="plate_fold" polycoef="0 0 0 0 0" solref="0.005 1"/>',
+        )
+
+    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+        main, strip, locked, stiffness = PLATE[variant]
+        self._plate = model.body("plate").id
+        self._rim = model.body("plate_rim").id
+        self._cake = model.body("cake").id
+        model.body_mass[self._plate] = main
+        model.body_mass[self._rim] = strip
+        model.body_inertia[self._plate] = main / 3 * np.array([HALF_Y**2, HALF_X**2, HALF_X**2 + HALF_Y**2]) / 2
+        model.body_inertia[self._rim] = strip / 3 * np.array([0.0002, HALF_X**2, HALF_X**2])
+        model.jnt_stiffness[model.joint("plate_fold").id] = stiffness
+        mujoco.mj_setConst(model, data)  # subtree masses and constraint weights follow the new masses
+        data.eq_active[model.equality("plate_rigid").id] = locked
+        rgb = PLATE_RGB[variant] + rng.uniform(-0.02, 0.02, 3)
+        for name in ("plate_rim", "plate_lip", "plate", "plate_rim_far"):
+            model.geom_rgba[model.geom(name).id] = [*np.clip(rgb, 0, 1), 1.0]
+        dx = rng.uniform(-0.01, 0.01)
+        strip_half = (HINGE_Y + HALF_Y) / 2
+        set_free_body_pose(model, data, "plate_rim", [X0 + dx, -HALF_Y + strip_half, STAND_H + FLOOR])
+        cake_xy = [X0 + dx + rng.uniform(-0.012, 0.012), 0.02 + rng.uniform(-0.01, 0.01)]
+        set_free_body_pose(model, data, "cake", [*cake_xy, STAND_H + 2 * FLOOR + CAKE[2]], yaw=rng.uniform(-0.3, 0.3))
+        self._held = 0
+
+    def cake_on_plate(self, data: mujoco.MjData) -> bool:
+        """The cake rests on the main plate: above its floor and within its outline (in its frame)."""
+        rel = data.xmat[self._plate].reshape(3, 3).T @ (data.xpos[self._cake] - data.xpos[self._plate])
+        main_half = (HALF_Y - HINGE_Y) / 2
+        return abs(rel[0]) < HALF_X and -0.005 < rel[1] < 2 * main_half and 0.0 < rel[2] < 0.03
+
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        d = physics.data
+        plate_z = d.xpos[self._rim][2]
+        if not self.cake_on_plate(d) and d.xpos[self._cake][2] < plate_z - 0.01:
+            return StepOutcome(catastrophe="drop")  # the cake slid off the plate
+        if plate_z < STAND_H - 0.01:
+            return StepOutcome(catastrophe="drop")  # the plate itself fell
+        lifted = min(plate_z, d.xpos[self._plate][2]) > STAND_H + FLOOR + LIFT
+        level = abs(np.arcsin(np.clip(d.xmat[self._plate][7], -1, 1))) < np.deg2rad(20)
+        self._held = self._held + 1 if (lifted and level and self.cake_on_plate(d)) else 0
+        return StepOutcome(success=self._held >= 5)

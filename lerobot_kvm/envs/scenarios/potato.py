@@ -8,13 +8,16 @@ yield when raw, soft with a low elastic limit when cooked (MuJoCo elasto-plastic
 more under the same grip when cooked, so the shift shows in the sensed finger width/velocity.
 """
 
+from functools import partial
+
 import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
 from ..experts import GraspLiftExpert
+from ..grasp_lift import GraspLiftScenario
 from ..physics import Physics, geom_ids, set_free_body_pose
-from ..scenario import Scenario, StepOutcome, register_scenario
+from ..scenario import StepOutcome, register_scenario
 from ..scene import SceneParts
 
 RADII = (0.045, 0.032, 0.028)
@@ -33,9 +36,10 @@ FLESH = {
 
 
 @register_scenario
-class Potato(Scenario):
+class Potato(GraspLiftScenario):
     info = SCENARIO_INFOS["potato"]
-    grips = {"firm_grasp": 0.75, "gentle_grasp": 0.15}
+    skills = {"firm_grasp": partial(GraspLiftExpert, grip=0.75), "gentle_grasp": partial(GraspLiftExpert, grip=0.15)}
+    body, rest_z, lift_height = "potato", RADII[2], LIFT_HEIGHT
 
     def parts(self) -> SceneParts:
         r = " ".join(str(v) for v in RADII)
@@ -62,6 +66,7 @@ class Potato(Scenario):
         )
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+        super().reset(model, data, variant, rng)
         self._gid = model.geom("potato").id
         self._bid = model.body("potato").id
         self._fingers = geom_ids(model, "finger_l", "finger_r")
@@ -76,7 +81,6 @@ class Potato(Scenario):
             model.jnt_springyield[j] = limit
         rgb = SKIN_RGB + rng.uniform(-0.02, 0.02, 3)
         model.geom_rgba[self._gid] = [*rgb, 1.0]
-        self._held = 0
         xy = rng.uniform(-0.012, 0.012, 2)
         set_free_body_pose(model, data, "potato", [xy[0], xy[1], RADII[2]], yaw=rng.uniform(-0.25, 0.25))
 
@@ -89,12 +93,4 @@ class Potato(Scenario):
         if self.dent(d) > CRUSH_DEPTH:
             m.geom_rgba[self._gid] = [*MASH_RGB, 1.0]  # the flesh has split open
             return StepOutcome(catastrophe="crush")
-        lifted = d.xpos[self._bid][2] > RADII[2] + LIFT_HEIGHT
-        held = physics.sensors.touch(d).min() > 0.05
-        self._held = self._held + 1 if (lifted and held) else 0
-        return StepOutcome(success=self._held >= 5)
-
-    def expert(self, skill: str) -> GraspLiftExpert:
-        if skill not in self.grips:
-            raise ValueError(f"potato has no skill {skill!r}; it has {sorted(self.grips)}")
-        return GraspLiftExpert("potato", grip=self.grips[skill])
+        return self.held_aloft(physics)

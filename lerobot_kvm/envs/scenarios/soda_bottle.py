@@ -7,6 +7,8 @@ and the friction at its base (mu * COM height > radius) plus the kick tip it ove
 low on the bottle keeps the contact and never lets it slide free.
 """
 
+from functools import partial
+
 import mujoco
 import numpy as np
 
@@ -39,71 +41,6 @@ def _liquid_inertia(mass: float) -> np.ndarray:
     h = 2 * (HALF_HEIGHT + LIQUID_COM)
     ixx = mass * (3 * RADIUS**2 + h**2) / 12
     return np.array([ixx, ixx, mass * RADIUS**2 / 2])
-
-
-@register_scenario
-class SodaBottle(Scenario):
-    info = SCENARIO_INFOS["soda_bottle"]
-
-    def parts(self) -> SceneParts:
-        r, hh = RADIUS, HALF_HEIGHT
-        rgb = " ".join(f"{v:.3f}" for v in BOTTLE_RGB)
-        h = 2 * HALF_HEIGHT
-        shell = SHELL_MASS * np.array([RADIUS**2 / 2 + h**2 / 12, 0.0, RADIUS**2])
-        return SceneParts(
-            worldbody=f"""
-    <body name="bottle" pos="{START_X} 0 {hh}">
-      <freejoint name="bottle"/>
-      <inertial pos="0 0 {SHELL_COM}" mass="{SHELL_MASS}" diaginertia="{shell[0]:.3e} {shell[0]:.3e} {shell[2]:.3e}"/>
-      <geom name="bottle" type="cylinder" size="{r} {hh}" priority="1" friction="0.4 0.005 0.0001"
-            rgba="{rgb} 1" condim="4"/>
-      <geom name="bottle_neck" type="cylinder" size="0.013 0.0125" pos="0 0 {hh + 0.0125}" priority="1"
-            friction="0.4 0.005 0.0001" rgba="{rgb} 1"/>
-      <geom name="bottle_cap" type="cylinder" size="0.014 0.006" pos="0 0 {hh + 0.028}" contype="0"
-            conaffinity="0" rgba="0.8 0.1 0.1 1"/>
-      <geom name="bottle_label" type="cylinder" size="{r + 0.0008} 0.025" pos="0 0 0.01" contype="0"
-            conaffinity="0" rgba="0.85 0.15 0.12 1"/>
-      <body name="liquid" pos="0 0 {LIQUID_COM}">
-        <inertial pos="0 0 0" mass="0.5" diaginertia="0.001 0.001 0.0003"/>
-      </body>
-    </body>"""
-        )
-
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
-        self._bid = model.body("bottle").id
-        # Only masses and inertias change: moving body_ipos would misplace the body's collision bounds.
-        liquid = model.body("liquid").id
-        model.body_mass[liquid] = LIQUID_MASS[variant]
-        model.body_inertia[liquid] = _liquid_inertia(LIQUID_MASS[variant])
-        mujoco.mj_setConst(model, data)  # subtree masses and constraint weights follow the new mass
-        jitter = rng.uniform(-0.015, 0.015, 3)
-        model.geom_rgba[model.geom("bottle").id] = [*(BODY_RGB[variant] + jitter), 1.0]
-        model.geom_rgba[model.geom("bottle_neck").id] = [*(BOTTLE_RGB + jitter), 1.0]
-        xy = np.array([START_X, 0.0]) + rng.uniform(-0.012, 0.012, 2)
-        set_free_body_pose(model, data, "bottle", [xy[0], xy[1], HALF_HEIGHT], yaw=rng.uniform(-np.pi, np.pi))
-        self.start = xy.copy()
-        self._rest = 0
-
-    def tilt(self, data: mujoco.MjData) -> float:
-        return float(np.arccos(np.clip(data.xmat[self._bid][8], -1.0, 1.0)))
-
-    def evaluate(self, physics: Physics) -> StepOutcome:
-        d = physics.data
-        tilt = self.tilt(d)
-        if tilt > TIP_ANGLE:
-            return StepOutcome(catastrophe="tip_over")
-        moved = d.xpos[self._bid][0] - self.start[0]
-        speed = np.linalg.norm(d.cvel[self._bid][3:])
-        ok = moved > PUSH_DISTANCE and tilt < UPRIGHT_ANGLE and speed < 0.01
-        self._rest = self._rest + 1 if ok else 0
-        return StepOutcome(success=self._rest >= 3)
-
-    def expert(self, skill: str) -> Expert:
-        if skill == "fast_push":
-            return PushExpert(speed=0.028, push_z=0.095, pitch=0.0)
-        if skill == "slow_push":
-            return PushExpert(speed=0.004, push_z=0.03, pitch=-0.45)
-        raise ValueError(f"soda_bottle has no skill {skill!r}; it has ['fast_push', 'slow_push']")
 
 
 def pusher_front(pitch: float) -> tuple[float, float]:
@@ -158,3 +95,65 @@ class PushExpert(Expert):
         elif self.timer > 8:  # back off once the bottle has come to rest
             self.target[0] = max(self.target[0] - 0.004, self.goal_x - 0.03)
         return np.array([*self.target, self.pitch, CLOSE_GRIP], dtype=np.float32)
+
+
+@register_scenario
+class SodaBottle(Scenario):
+    info = SCENARIO_INFOS["soda_bottle"]
+    skills = {
+        "fast_push": partial(PushExpert, speed=0.028, push_z=0.095, pitch=0.0),
+        "slow_push": partial(PushExpert, speed=0.004, push_z=0.03, pitch=-0.45),
+    }
+
+    def parts(self) -> SceneParts:
+        r, hh = RADIUS, HALF_HEIGHT
+        rgb = " ".join(f"{v:.3f}" for v in BOTTLE_RGB)
+        h = 2 * HALF_HEIGHT
+        shell = SHELL_MASS * np.array([RADIUS**2 / 2 + h**2 / 12, 0.0, RADIUS**2])
+        return SceneParts(
+            worldbody=f"""
+    <body name="bottle" pos="{START_X} 0 {hh}">
+      <freejoint name="bottle"/>
+      <inertial pos="0 0 {SHELL_COM}" mass="{SHELL_MASS}" diaginertia="{shell[0]:.3e} {shell[0]:.3e} {shell[2]:.3e}"/>
+      <geom name="bottle" type="cylinder" size="{r} {hh}" priority="1" friction="0.4 0.005 0.0001"
+            rgba="{rgb} 1" condim="4"/>
+      <geom name="bottle_neck" type="cylinder" size="0.013 0.0125" pos="0 0 {hh + 0.0125}" priority="1"
+            friction="0.4 0.005 0.0001" rgba="{rgb} 1"/>
+      <geom name="bottle_cap" type="cylinder" size="0.014 0.006" pos="0 0 {hh + 0.028}" contype="0"
+            conaffinity="0" rgba="0.8 0.1 0.1 1"/>
+      <geom name="bottle_label" type="cylinder" size="{r + 0.0008} 0.025" pos="0 0 0.01" contype="0"
+            conaffinity="0" rgba="0.85 0.15 0.12 1"/>
+      <body name="liquid" pos="0 0 {LIQUID_COM}">
+        <inertial pos="0 0 0" mass="0.5" diaginertia="0.001 0.001 0.0003"/>
+      </body>
+    </body>"""
+        )
+
+    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+        self._bid = model.body("bottle").id
+        # Only masses and inertias change: moving body_ipos would misplace the body's collision bounds.
+        liquid = model.body("liquid").id
+        model.body_mass[liquid] = LIQUID_MASS[variant]
+        model.body_inertia[liquid] = _liquid_inertia(LIQUID_MASS[variant])
+        mujoco.mj_setConst(model, data)  # subtree masses and constraint weights follow the new mass
+        jitter = rng.uniform(-0.015, 0.015, 3)
+        model.geom_rgba[model.geom("bottle").id] = [*(BODY_RGB[variant] + jitter), 1.0]
+        model.geom_rgba[model.geom("bottle_neck").id] = [*(BOTTLE_RGB + jitter), 1.0]
+        xy = np.array([START_X, 0.0]) + rng.uniform(-0.012, 0.012, 2)
+        set_free_body_pose(model, data, "bottle", [xy[0], xy[1], HALF_HEIGHT], yaw=rng.uniform(-np.pi, np.pi))
+        self.start = xy.copy()
+        self._rest = 0
+
+    def tilt(self, data: mujoco.MjData) -> float:
+        return float(np.arccos(np.clip(data.xmat[self._bid][8], -1.0, 1.0)))
+
+    def evaluate(self, physics: Physics) -> StepOutcome:
+        d = physics.data
+        tilt = self.tilt(d)
+        if tilt > TIP_ANGLE:
+            return StepOutcome(catastrophe="tip_over")
+        moved = d.xpos[self._bid][0] - self.start[0]
+        speed = np.linalg.norm(d.cvel[self._bid][3:])
+        ok = moved > PUSH_DISTANCE and tilt < UPRIGHT_ANGLE and speed < 0.01
+        self._rest = self._rest + 1 if ok else 0
+        return StepOutcome(success=self._rest >= 3)

@@ -8,13 +8,16 @@ squeeze with a steady lift carries it. The wrist force and the fingertip loads s
 weight as soon as the lift starts (rule 3).
 """
 
+from functools import partial
+
 import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
 from ..experts import GraspLiftExpert
+from ..grasp_lift import GraspLiftScenario
 from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
-from ..scenario import Scenario, StepOutcome, register_scenario
+from ..scenario import StepOutcome, register_scenario
 from ..scene import SceneParts
 
 HALF = (0.045, 0.03, 0.02)  # sponge half extents (m)
@@ -33,9 +36,14 @@ BODY = {
 
 
 @register_scenario
-class Sponge(Scenario):
+class Sponge(GraspLiftScenario):
     info = SCENARIO_INFOS["sponge"]
-    skills = {"light_grasp": (0.1, 0.04), "firm_grasp": (0.6, 0.01)}  # (grip, lift m/step)
+    skills = {
+        "light_grasp": partial(GraspLiftExpert, grip=0.1, lift_step=0.04),
+        "firm_grasp": partial(GraspLiftExpert, grip=0.6, lift_step=0.01),
+    }
+    body, rest_z, lift_height = "sponge", HALF[2], LIFT_HEIGHT
+    grasp = {"liftoff": LIFTOFF, "liftoff_step": LIFTOFF_STEP, "top": HAND_TOP}
 
     def parts(self) -> SceneParts:
         h = " ".join(str(v) for v in HALF)
@@ -50,6 +58,7 @@ class Sponge(Scenario):
         )
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+        super().reset(model, data, variant, rng)
         self._gid = model.geom("sponge").id
         self._bid = model.body("sponge").id
         self._sponge = geom_ids(model, "sponge")
@@ -61,7 +70,6 @@ class Sponge(Scenario):
         mujoco.mj_setConst(model, data)  # refresh the solver's inverse-weight estimates for the new mass
         model.geom_rgba[self._gid] = [*(SPONGE_RGB + rng.uniform(-0.02, 0.02, 3)), 1.0]
         self._airborne = False
-        self._held = 0
         xy = rng.uniform(-0.012, 0.012, 2)
         set_free_body_pose(model, data, "sponge", [xy[0], xy[1], HALF[2]], yaw=rng.uniform(-0.15, 0.15))
 
@@ -73,14 +81,4 @@ class Sponge(Scenario):
             self._airborne = True
         if self._airborne and not gripped:
             return StepOutcome(catastrophe="drop")
-        held = height > LIFT_HEIGHT and physics.sensors.touch(d).min() > 0.05
-        self._held = self._held + 1 if held else 0
-        return StepOutcome(success=self._held >= 5)
-
-    def expert(self, skill: str) -> GraspLiftExpert:
-        if skill not in self.skills:
-            raise ValueError(f"sponge has no skill {skill!r}; it has {sorted(self.skills)}")
-        grip, lift_step = self.skills[skill]
-        return GraspLiftExpert(
-            "sponge", grip, lift_step=lift_step, liftoff=LIFTOFF, liftoff_step=LIFTOFF_STEP, top=HAND_TOP
-        )
+        return self.held_aloft(physics)

@@ -15,6 +15,9 @@ toothpick starts sliding, turn back once one is out. The shift shows in the wris
 force: without the cover nothing stops the sliding toothpicks and the load leaves the hand.
 """
 
+from functools import partial
+from typing import Any
+
 import mujoco
 import numpy as np
 
@@ -45,9 +48,64 @@ def _lane_y(k: int) -> float:
     return (k - (N_PICKS - 1) / 2) * LANE
 
 
+class TiltExpert(Expert):
+    """Hold the dispenser over the saucer; pitch < 0 lowers its back (cover) end.
+
+    Old skill: tip steeply, give three shakes, level again. Safe skill: tilt slowly, hold the angle
+    while a toothpick is sliding, level again as soon as one is out.
+    """
+
+    STEEP = -0.9
+
+    def __init__(self, scenario: "ToothpickDispenser", gentle: bool) -> None:
+        self.scenario = scenario  # the demonstrator sees how many toothpicks are out
+        self.gentle = gentle
+        self.phase = "move"
+        self.timer = 0
+        self.pitch = 0.0
+        self.shakes = 0
+
+    def act(self, physics: Physics) -> np.ndarray:
+        sc = self.scenario
+        d = physics.data
+        pos = physics.sensors.arm_position(d)
+        saucer = d.body("saucer").xpos
+        goal = np.array([saucer[0] + 0.05, saucer[1], 0.15])
+        target = pos[:3] + np.clip(goal - pos[:3], -0.015, 0.015)
+        dz = 0.0
+        self.timer += 1
+        out = sc.count_out(d)
+        if self.phase == "move":
+            if np.linalg.norm(goal - pos[:3]) < 0.004 and self.timer > 4:
+                self.phase, self.timer = "tilt", 0
+        elif self.phase == "tilt":
+            if self.gentle:
+                sliding = sc.pick_speed(physics).max() > 0.01
+                if out >= 1:
+                    self.phase, self.timer = "back", 0
+                elif not sliding:
+                    self.pitch = max(self.STEEP, self.pitch - 0.02)
+            else:
+                self.pitch = max(self.STEEP, self.pitch - 0.3)
+                if self.pitch <= self.STEEP and self.timer > 3:
+                    self.phase, self.timer = "shake", 0
+        elif self.phase == "shake":
+            dz = -0.015 if self.timer % 4 in (1, 2) else 0.0
+            if self.timer % 4 == 0:
+                self.shakes += 1
+            if self.shakes >= 3:
+                self.phase, self.timer = "back", 0
+        else:
+            self.pitch = min(0.0, self.pitch + 0.15)
+        if self.phase != "move":
+            target = goal + [0.0, 0.0, dz]
+        return np.array([*target, self.pitch, -1.0], dtype=np.float32)
+
+
 @register_scenario
 class ToothpickDispenser(Scenario):
     info = SCENARIO_INFOS["toothpick_dispenser"]
+    skills = {"tilt_and_shake": partial(TiltExpert, gentle=False), "slow_tilt": partial(TiltExpert, gentle=True)}
 
     def parts(self) -> SceneParts:
         rgb = " ".join(f"{v:.3f}" for v in _BOX_RGB)
@@ -159,63 +217,5 @@ class ToothpickDispenser(Scenario):
         self._level = self._level + 1 if (level and 1 <= self.out <= MAX_OUT) else 0
         return StepOutcome(success=self._level >= 5)
 
-    def expert(self, skill: str) -> Expert:
-        if skill == "tilt_and_shake":
-            return TiltExpert(self, gentle=False)
-        if skill == "slow_tilt":
-            return TiltExpert(self, gentle=True)
-        raise ValueError(f"toothpick_dispenser has no skill {skill!r}; it has ['slow_tilt', 'tilt_and_shake']")
-
-
-class TiltExpert(Expert):
-    """Hold the dispenser over the saucer; pitch < 0 lowers its back (cover) end.
-
-    Old skill: tip steeply, give three shakes, level again. Safe skill: tilt slowly, hold the angle
-    while a toothpick is sliding, level again as soon as one is out.
-    """
-
-    STEEP = -0.9
-
-    def __init__(self, scenario: ToothpickDispenser, gentle: bool) -> None:
-        self.scenario = scenario  # the demonstrator sees how many toothpicks are out
-        self.gentle = gentle
-        self.phase = "move"
-        self.timer = 0
-        self.pitch = 0.0
-        self.shakes = 0
-
-    def act(self, physics: Physics) -> np.ndarray:
-        sc = self.scenario
-        d = physics.data
-        pos = physics.sensors.arm_position(d)
-        saucer = d.body("saucer").xpos
-        goal = np.array([saucer[0] + 0.05, saucer[1], 0.15])
-        target = pos[:3] + np.clip(goal - pos[:3], -0.015, 0.015)
-        dz = 0.0
-        self.timer += 1
-        out = sc.count_out(d)
-        if self.phase == "move":
-            if np.linalg.norm(goal - pos[:3]) < 0.004 and self.timer > 4:
-                self.phase, self.timer = "tilt", 0
-        elif self.phase == "tilt":
-            if self.gentle:
-                sliding = sc.pick_speed(physics).max() > 0.01
-                if out >= 1:
-                    self.phase, self.timer = "back", 0
-                elif not sliding:
-                    self.pitch = max(self.STEEP, self.pitch - 0.02)
-            else:
-                self.pitch = max(self.STEEP, self.pitch - 0.3)
-                if self.pitch <= self.STEEP and self.timer > 3:
-                    self.phase, self.timer = "shake", 0
-        elif self.phase == "shake":
-            dz = -0.015 if self.timer % 4 in (1, 2) else 0.0
-            if self.timer % 4 == 0:
-                self.shakes += 1
-            if self.shakes >= 3:
-                self.phase, self.timer = "back", 0
-        else:
-            self.pitch = min(0.0, self.pitch + 0.15)
-        if self.phase != "move":
-            target = goal + [0.0, 0.0, dz]
-        return np.array([*target, self.pitch, -1.0], dtype=np.float32)
+    def expert_context(self) -> dict[str, Any]:
+        return {"scenario": self}  # the demonstrator sees how many toothpicks are out
