@@ -73,3 +73,21 @@ def robot_in_contact(data: mujoco.MjData, robot: np.ndarray) -> bool:
     """The robot touches anything that is not itself (`robot` from `robot_geom_mask`)."""
     c = data.contact[: data.ncon]
     return bool(np.any(robot[c.geom1] != robot[c.geom2]))
+
+
+class StrokeCoverage:
+    """Which of `bins` equal parts of a stroke a tool has swept while touching: a part counts once the tool, in
+    contact at two consecutive steps, moved across it (positions in bins from the stroke's start)."""
+
+    def __init__(self, bins: int) -> None:
+        self.bins = bins
+        self.covered = np.zeros(bins, dtype=bool)
+        self._last: float | None = None  # position at the previous step, if the tool was touching then
+
+    def update(self, position: float | None) -> int:
+        """Add this step's position (None: not touching); returns how many parts are covered so far."""
+        if position is not None:
+            lo, hi = sorted((position, position if self._last is None else self._last))
+            self.covered[max(0, int(np.floor(lo))) : max(0, min(self.bins, int(np.floor(hi)) + 1))] = True
+        self._last = position
+        return int(self.covered.sum())

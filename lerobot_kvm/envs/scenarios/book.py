@@ -9,18 +9,22 @@ force of about its sliding friction (1-3 N).
 """
 
 from functools import partial
+from typing import Any
 
 import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
+from ..experts import PushExpert
 from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
-from ..scenario import Expert, Scenario, StepOutcome, register_scenario
+from ..scenario import Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts
 
 HALF = (0.07, 0.10, 0.015)  # half depth (along the push), half width, half thickness
 START_X = 0.06
 PUSH_DISTANCE = 0.08
+# The closed fingers push 15 mm ahead of the hand, their tips 12 mm up the back face; the hand stays up until behind.
+PUSHER = {"ahead": 0.015, "hand_z": 0.012 + 0.07, "reach_first": True}
 COVER_RGB = {
     "prior": np.array([0.16, 0.22, 0.45]),
     "shifted": np.array([0.22, 0.30, 0.55]),
@@ -32,52 +36,15 @@ BOOK_MASS = {"prior": 0.8, "shifted": 0.3, "control": 1.2}
 # hardcover's board never yields, the paperback's card cover yields at 2500 * 0.0016 = 4 N
 COVER = {"prior": (10000.0, 1.0), "shifted": (2500.0, 0.0016), "control": (10000.0, 1.0)}
 CREASE = 0.0005  # m of permanent dent that counts as a damaged cover
-CLOSE_GRIP = 0.25  # closes the empty fingers against each other into a pusher
-
-
-class BookPushExpert(Expert):
-    """Close the fingers into a pusher, lower them behind the book's back edge, push along +x, stop."""
-
-    PUSH_Z = 0.012  # fingertip height: low on the book's back face
-
-    def __init__(self, speed: float) -> None:
-        self.speed = speed
-        self.phase = "approach"
-        self.target: np.ndarray | None = None  # set from the hand's position on the first step
-        self.goal_x = 0.0
-        self.timer = 0
-
-    def act(self, physics: Physics) -> np.ndarray:
-        d = physics.data
-        book = d.body("book").xpos
-        pos = physics.sensors.arm_position(d)
-        back = book[0] - HALF[0]
-        self.timer += 1
-        if self.target is None:
-            self.target = pos[:3].copy()
-        if self.phase == "approach":
-            start = np.array([back - 0.015 - 0.03, book[1], self.PUSH_Z + 0.07])
-            step = np.clip(start - self.target, -0.015, 0.015)
-            if np.linalg.norm(start[:2] - self.target[:2]) > 0.01:
-                step[2] = max(step[2], 0.0)  # reach the spot behind the book before going down
-            self.target = self.target + step
-            closed = physics.sensors.finger_width(d) > 0.085
-            if np.linalg.norm(start - pos[:3]) < 0.004 and closed:
-                self.phase = "push"
-                self.goal_x = back - 0.015 + PUSH_DISTANCE + 0.005
-        elif self.phase == "push":
-            self.target[0] = min(self.target[0] + self.speed, self.goal_x)
-            if self.target[0] >= self.goal_x:
-                self.phase, self.timer = "hold", 0
-        elif self.timer > 8:  # back off once the book has come to rest
-            self.target[0] = max(self.target[0] - 0.004, self.goal_x - 0.03)
-        return np.array([*self.target, 0.0, CLOSE_GRIP], dtype=np.float32)
 
 
 @register_scenario
 class Book(Scenario):
     info = SCENARIO_INFOS["book"]
-    skills = {"fast_push": partial(BookPushExpert, speed=0.035), "slow_push": partial(BookPushExpert, speed=0.004)}
+    skills = {
+        "fast_push": partial(PushExpert, speed=0.035, **PUSHER),
+        "slow_push": partial(PushExpert, speed=0.004, **PUSHER),
+    }
 
     def parts(self) -> SceneParts:
         hx, hy, hz = HALF
@@ -147,3 +114,6 @@ class Book(Scenario):
         ok = moved > PUSH_DISTANCE and square and speed < 0.01
         self._rest = self._rest + 1 if ok else 0
         return StepOutcome(success=self._rest >= 3)
+
+    def expert_context(self) -> dict[str, Any]:
+        return {"body": "book", "half_depth": HALF[0], "distance": PUSH_DISTANCE}

@@ -9,13 +9,15 @@ works on both.
 """
 
 from functools import partial
+from typing import Any
 
 import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
-from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
-from ..scenario import Expert, Scenario, StepOutcome, register_scenario
+from ..experts import StrokeExpert
+from ..physics import Physics, StrokeCoverage, contact_normal_force, geom_ids, set_free_body_pose
+from ..scenario import Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts
 
 HALF = (0.045, 0.045)  # half size of the slice on the table
@@ -28,6 +30,10 @@ STROKE = 0.05  # spread this far along x across the middle of the slice
 BINS = 10  # the stroke in 5 mm bins; success: at least COVER of them spread
 COVER = 9
 CONTACT_N = 0.3  # blade-on-slice force that counts as spreading
+HOVER = 0.02  # blade height over the slice before the guarded descent
+# How the spreader feels for the slice: still over it while reading the free-air force, down 2 mm per step until
+# the wrist feels 0.3 N, then pressing up to 4 mm deeper per step for 5 steps before it strokes.
+SPREAD = {"descend_step": 0.002, "contact_force": 0.3, "press_step": 0.004, "press_steps": 5, "settle_steps": 4}
 TOP_RGB = {"prior": np.array([0.84, 0.66, 0.36]), "shifted": np.array([0.90, 0.76, 0.52])}
 SIDE_RGB = {"prior": np.array([0.78, 0.58, 0.30]), "shifted": np.array([0.74, 0.50, 0.26])}
 # variant -> (top-layer stiffness N/m, travel m, yield deflection m): a cracker gives 1 mm and never
@@ -36,68 +42,14 @@ SLICE = {"prior": (3000.0, 0.001, 1.0), "shifted": (800.0, 0.008, 0.006)}
 CRUSH = 0.002  # m of permanent flattening that counts as crushed bread
 
 
-class SpreadExpert(Expert):
-    """Hover over the slice, descend until the wrist feels contact, press, stroke along +x.
-
-    A guarded move: the contact height is where the wrist force sensor first feels the slice; the
-    hand is then commanded `press_depth` below it. The position loop (1500 N/m) in series with the
-    slice presses with about kp * depth on a hard cracker (12 mm: ~15 N, firm; 2 mm: ~2 N, gentle)
-    and less on soft bread, which gives way.
-    """
-
-    HOVER = 0.02
-    DESCEND = 0.002  # m per step once close to the surface
-    STROKE_STEP = 0.003  # m per step along the stroke
-
-    def __init__(self, press_depth: float) -> None:
-        self.press_depth = press_depth
-        self.phase = "approach"
-        self.target: np.ndarray | None = None  # set from the hand's position on the first step
-        self.baseline = 0.0
-        self.contact_z = 0.0
-        self.timer = 0
-
-    def _contact_force(self, physics: Physics) -> float:
-        """Upward push on the tool, from the wrist force sensor relative to its free-air reading."""
-        return self.baseline - float(physics.data.sensor("wrist_force").data[2])
-
-    def act(self, physics: Physics) -> np.ndarray:
-        d = physics.data
-        slice_xy = d.body("slice").xpos[:2]
-        pos = physics.sensors.arm_position(d)
-        self.timer += 1
-        if self.target is None:
-            self.target = pos[:3].copy()
-        start = np.array([slice_xy[0] - STROKE / 2 - 0.003, slice_xy[1], TOP_Z + BLADE_BELOW_HAND + self.HOVER])
-        if self.phase == "approach":
-            self.target = self.target + np.clip(start - self.target, -0.015, 0.015)
-            if np.linalg.norm(start - pos[:3]) < 0.003 and self.timer > 10:
-                self.phase, self.timer = "settle", 0
-        elif self.phase == "settle":  # read the free-air wrist force before touching anything
-            self.baseline = float(d.sensor("wrist_force").data[2])
-            if self.timer > 3:
-                self.phase = "descend"
-        elif self.phase == "descend":
-            self.target[2] -= self.DESCEND
-            if self._contact_force(physics) > 0.3:
-                self.contact_z = pos[2]
-                self.target[2] = pos[2]  # start pressing from where the tool met the surface
-                self.phase, self.timer = "press", 0
-        elif self.phase in ("press", "stroke"):
-            self.target[2] = max(self.target[2] - 0.004, self.contact_z - self.press_depth)
-            if self.phase == "press" and self.timer > 5:
-                self.phase = "stroke"
-            if self.phase == "stroke":
-                self.target[0] = min(self.target[0] + self.STROKE_STEP, slice_xy[0] + STROKE / 2 + 0.006)
-        return np.array([*self.target, 0.0, -1.0], dtype=np.float32)
-
-
 @register_scenario
 class CrackerVsBread(Scenario):
     info = SCENARIO_INFOS["cracker_vs_bread"]
+    # The position loop presses about kp * depth on a hard cracker (12 mm: ~15 N, firm; 2 mm: ~2 N, gentle) and
+    # less on soft bread, which gives way.
     skills = {
-        "firm_spread": partial(SpreadExpert, press_depth=0.012),
-        "gentle_spread": partial(SpreadExpert, press_depth=0.002),
+        "firm_spread": partial(StrokeExpert, press_depth=0.012, **SPREAD),
+        "gentle_spread": partial(StrokeExpert, press_depth=0.002, **SPREAD),
     }
 
     def parts(self) -> SceneParts:
@@ -144,8 +96,7 @@ class CrackerVsBread(Scenario):
         model.geom_rgba[model.geom("slice_face").id] = [*(TOP_RGB[variant] + jitter), 1.0]
         xy = np.array([0.02, 0.0]) + rng.uniform(-0.012, 0.012, 2)
         set_free_body_pose(model, data, "slice", [xy[0], xy[1], BASE_HALF_Z], yaw=rng.uniform(-0.1, 0.1))
-        self.covered = np.zeros(BINS, dtype=bool)
-        self._last_x: float | None = None  # blade position at the previous step, if it was touching then
+        self.coverage = StrokeCoverage(BINS)
         self.flattening = 0.0
         self.force = 0.0
 
@@ -159,7 +110,13 @@ class CrackerVsBread(Scenario):
         x = None
         if self.force > CONTACT_N:  # spread along the way since the previous step if touching at both ends
             x = (d.geom("spreader_blade").xpos[0] - d.xpos[self._bid][0] + STROKE / 2) / STROKE * BINS
-            lo, hi = sorted((x, x if self._last_x is None else self._last_x))
-            self.covered[max(0, int(np.floor(lo))) : max(0, min(BINS, int(np.floor(hi)) + 1))] = True
-        self._last_x = x
-        return StepOutcome(success=bool(self.covered.sum() >= COVER))
+        return StepOutcome(success=self.coverage.update(x) >= COVER)
+
+    def stroke_line(self, physics: Physics) -> tuple[np.ndarray, float]:
+        """Where the spreader hovers before the stroke and the x it strokes to: across the middle of the slice."""
+        slice_xy = physics.data.body("slice").xpos[:2]
+        hover = np.array([slice_xy[0] - STROKE / 2 - 0.003, slice_xy[1], TOP_Z + BLADE_BELOW_HAND + HOVER])
+        return hover, slice_xy[0] + STROKE / 2 + 0.006
+
+    def expert_context(self) -> dict[str, Any]:
+        return {"line": self.stroke_line}

@@ -14,8 +14,9 @@ import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
-from ..physics import Physics, contact_normal_force, geom_ids
-from ..scenario import Expert, Scenario, StepOutcome, register_scenario
+from ..experts import StrokeExpert
+from ..physics import Physics, StrokeCoverage, contact_normal_force, geom_ids
+from ..scenario import Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts
 
 PAPER_HALF = (0.07, 0.05, 0.0005)
@@ -25,6 +26,10 @@ STROKE = 0.05
 BINS = 10  # the line in 5 mm bins; success: at least COVER of them drawn
 COVER = 9
 CONTACT_N = 0.1  # tip-on-paper force that leaves a mark
+HOVER = 0.012  # tip height over the paper before the guarded descent
+# How the tool feels for the paper: down 1 mm per step, reading the free-air force on the 4th step and stopping once
+# the wrist feels 0.08 N more, then pressing up to 3 mm deeper per step for 4 steps before it draws.
+DRAW = {"descend_step": 0.001, "contact_force": 0.08, "press_step": 0.003, "press_steps": 4, "free_air_step": 4}
 TIP_RGB = {"prior": np.array([0.15, 0.18, 0.45]), "shifted": np.array([0.12, 0.12, 0.14])}
 BARREL_RGB = {"prior": np.array([0.20, 0.35, 0.75]), "shifted": np.array([0.22, 0.38, 0.72])}
 # variant -> (tip stiffness N/m, travel m, yield deflection m): a ballpoint's spring-loaded refill
@@ -33,67 +38,14 @@ TIP = {"prior": (1000.0, 0.0015, 1.0), "shifted": (250.0, 0.012, 0.004)}
 BENT = 0.0015  # m of permanent set that counts as damaged bristles
 
 
-class StrokeExpert(Expert):
-    """Hover over the line's start, descend until the wrist feels contact, press, draw along +x.
-
-    A guarded move: the contact height is where the wrist force sensor first feels the paper; the
-    hand is then commanded `press_depth` below it. The position loop (1500 N/m) in series with the
-    tool's tip presses with about 1.2 N (2 mm, light) or up to ~8 N (6 mm, pressing) on the stiff
-    ballpoint, and far less on the soft brush, whose bristles give way.
-    """
-
-    HOVER = 0.012
-    DESCEND = 0.001  # m per step near the paper
-    STROKE_STEP = 0.003
-
-    def __init__(self, scenario: "PenVsBrush", press_depth: float) -> None:
-        self.scenario = scenario
-        self.press_depth = press_depth
-        self.phase = "approach"
-        self.target: np.ndarray | None = None  # set from the hand's position on the first step
-        self.baseline = 0.0
-        self.contact_z = 0.0
-        self.timer = 0
-
-    def _contact_force(self, physics: Physics) -> float:
-        """Upward push on the tool, from the wrist force sensor relative to its reading while descending."""
-        return self.baseline - float(physics.data.sensor("wrist_force").data[2])
-
-    def act(self, physics: Physics) -> np.ndarray:
-        d = physics.data
-        pos = physics.sensors.arm_position(d)
-        self.timer += 1
-        if self.target is None:
-            self.target = pos[:3].copy()
-        start = self.scenario.start  # where the line is to begin (the demonstrator sees the sheet)
-        hover = np.array([start[0] - 0.002, start[1], PAPER_TOP + TIP_BELOW_HAND + self.HOVER])
-        if self.phase == "approach":
-            self.target = self.target + np.clip(hover - self.target, -0.015, 0.015)
-            if np.linalg.norm(hover - pos[:3]) < 0.003 and self.timer > 10:
-                self.phase, self.timer = "descend", 0
-        elif self.phase == "descend":
-            self.target[2] -= self.DESCEND
-            if self.timer == 4:  # free-air reading while moving, well above the paper
-                self.baseline = float(d.sensor("wrist_force").data[2])
-            if self.timer > 4 and self._contact_force(physics) > 0.08:
-                self.contact_z = pos[2]
-                self.target[2] = pos[2]  # start pressing from where the tool met the surface
-                self.phase, self.timer = "press", 0
-        elif self.phase in ("press", "stroke"):
-            self.target[2] = max(self.target[2] - 0.003, self.contact_z - self.press_depth)
-            if self.phase == "press" and self.timer > 4:
-                self.phase = "stroke"
-            if self.phase == "stroke":
-                self.target[0] = min(self.target[0] + self.STROKE_STEP, start[0] + STROKE + 0.006)
-        return np.array([*self.target, 0.0, -1.0], dtype=np.float32)
-
-
 @register_scenario
 class PenVsBrush(Scenario):
     info = SCENARIO_INFOS["pen_vs_brush"]
+    # The position loop presses about 1.2 N (2 mm, light) or up to ~8 N (6 mm, pressing) on the stiff ballpoint,
+    # and far less on the soft brush, whose bristles give way.
     skills = {
-        "press_stroke": partial(StrokeExpert, press_depth=0.006),
-        "light_stroke": partial(StrokeExpert, press_depth=0.002),
+        "press_stroke": partial(StrokeExpert, press_depth=0.006, **DRAW),
+        "light_stroke": partial(StrokeExpert, press_depth=0.002, **DRAW),
     }
 
     def parts(self) -> SceneParts:
@@ -131,8 +83,7 @@ class PenVsBrush(Scenario):
         model.geom_rgba[model.geom("tool_tip").id] = [*(TIP_RGB[variant] + jitter), 1.0]
         # nuisance: where on the sheet the line starts
         self.start = np.array([self._paper_x - STROKE / 2, 0.0]) + rng.uniform(-0.012, 0.012, 2)
-        self.covered = np.zeros(BINS, dtype=bool)
-        self._last_x: float | None = None  # tip position at the previous step, if it was touching then
+        self.coverage = StrokeCoverage(BINS)
         self.bend = 0.0
         self.force = 0.0
 
@@ -145,10 +96,13 @@ class PenVsBrush(Scenario):
         x = None
         if self.force > CONTACT_N:  # drawn along the way since the previous step if touching at both ends
             x = (d.geom("tool_tip").xpos[0] - self.start[0]) / STROKE * BINS
-            lo, hi = sorted((x, x if self._last_x is None else self._last_x))
-            self.covered[max(0, int(np.floor(lo))) : max(0, min(BINS, int(np.floor(hi)) + 1))] = True
-        self._last_x = x
-        return StepOutcome(success=bool(self.covered.sum() >= COVER))
+        return StepOutcome(success=self.coverage.update(x) >= COVER)
+
+    def stroke_line(self, physics: Physics) -> tuple[np.ndarray, float]:
+        """Where the tool hovers before the line and the x it draws to (the demonstrator sees the sheet)."""
+        return np.array([self.start[0] - 0.002, self.start[1], PAPER_TOP + TIP_BELOW_HAND + HOVER]), (
+            self.start[0] + STROKE + 0.006
+        )
 
     def expert_context(self) -> dict[str, Any]:
-        return {"scenario": self}  # the demonstrator sees where the line is to begin
+        return {"line": self.stroke_line}

@@ -8,13 +8,15 @@ low on the bottle keeps the contact and never lets it slide free.
 """
 
 from functools import partial
+from typing import Any
 
 import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
+from ..experts import PushExpert
 from ..physics import Physics, set_free_body_pose
-from ..scenario import Expert, Scenario, StepOutcome, register_scenario
+from ..scenario import Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts
 
 RADIUS = 0.032
@@ -55,54 +57,18 @@ def pusher_front(pitch: float) -> tuple[float, float]:
     return tip if tip[0] > palm[0] else palm
 
 
-CLOSE_GRIP = 0.25  # closes the empty fingers against each other (stronger squeezes let them slip past)
-
-
-class PushExpert(Expert):
-    """Close the fingers into a pusher, line up behind the bottle, push along +x at a fixed speed, stop.
-
-    `push_z` is the height at which the pusher's leading point meets the bottle, `speed` the
-    carriage speed in m per control step; the push ends with an abrupt stop.
-    """
-
-    def __init__(self, speed: float, push_z: float, pitch: float) -> None:
-        self.speed, self.push_z, self.pitch = speed, push_z, pitch
-        self.ahead, height = pusher_front(pitch)
-        self.hand_z = push_z - height
-        self.phase = "approach"
-        self.target: np.ndarray | None = None  # set from the hand's position on the first step
-        self.goal_x = 0.0
-        self.timer = 0
-
-    def act(self, physics: Physics) -> np.ndarray:
-        d = physics.data
-        bottle = d.body("bottle").xpos
-        pos = physics.sensors.arm_position(d)
-        self.timer += 1
-        if self.target is None:
-            self.target = pos[:3].copy()
-        if self.phase == "approach":
-            start = np.array([bottle[0] - RADIUS - self.ahead - 0.03, bottle[1], self.hand_z])
-            self.target = self.target + np.clip(start - self.target, -0.015, 0.015)
-            closed = physics.sensors.finger_width(d) > 0.085
-            if np.linalg.norm(start - pos[:3]) < 0.004 and closed:
-                self.phase = "push"
-                self.goal_x = bottle[0] - RADIUS - self.ahead + PUSH_DISTANCE + 0.005
-        elif self.phase == "push":
-            self.target[0] = min(self.target[0] + self.speed, self.goal_x)
-            if self.target[0] >= self.goal_x:
-                self.phase, self.timer = "hold", 0
-        elif self.timer > 8:  # back off once the bottle has come to rest
-            self.target[0] = max(self.target[0] - 0.004, self.goal_x - 0.03)
-        return np.array([*self.target, self.pitch, CLOSE_GRIP], dtype=np.float32)
+def pusher(push_z: float, pitch: float) -> dict[str, float]:
+    """`PushExpert` options that meet the bottle at height `push_z` with the wrist at `pitch`."""
+    ahead, height = pusher_front(pitch)
+    return {"ahead": ahead, "hand_z": push_z - height, "pitch": pitch}
 
 
 @register_scenario
 class SodaBottle(Scenario):
     info = SCENARIO_INFOS["soda_bottle"]
     skills = {
-        "fast_push": partial(PushExpert, speed=0.028, push_z=0.095, pitch=0.0),
-        "slow_push": partial(PushExpert, speed=0.004, push_z=0.03, pitch=-0.45),
+        "fast_push": partial(PushExpert, speed=0.028, **pusher(push_z=0.095, pitch=0.0)),
+        "slow_push": partial(PushExpert, speed=0.004, **pusher(push_z=0.03, pitch=-0.45)),
     }
 
     def parts(self) -> SceneParts:
@@ -157,3 +123,6 @@ class SodaBottle(Scenario):
         ok = moved > PUSH_DISTANCE and tilt < UPRIGHT_ANGLE and speed < 0.01
         self._rest = self._rest + 1 if ok else 0
         return StepOutcome(success=self._rest >= 3)
+
+    def expert_context(self) -> dict[str, Any]:
+        return {"body": "bottle", "half_depth": RADIUS, "distance": PUSH_DISTANCE}
