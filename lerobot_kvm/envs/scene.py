@@ -5,7 +5,9 @@ camera, lighting and the software-rendering settings live once in `assets/scene.
 every scene renders fast on CPU and senses the same channels.
 """
 
-from dataclasses import dataclass
+import xml.etree.ElementTree as ET
+from collections.abc import Iterable
+from dataclasses import dataclass, fields
 from pathlib import Path
 from string import Template
 
@@ -28,7 +30,8 @@ class SceneParts:
     option: str = ""
 
 
-SCENE_XML = Template((Path(__file__).parent / "assets" / "scene.xml").read_text())
+ASSETS = Path(__file__).parent / "assets"
+SCENE_XML = Template((ASSETS / "scene.xml").read_text())
 
 
 def build_scene_xml(parts: SceneParts, *, width: int, height: int, timestep: float = 0.002) -> str:
@@ -49,3 +52,28 @@ def build_scene_xml(parts: SceneParts, *, width: int, height: int, timestep: flo
         equality=parts.equality,
         contact=parts.contact,
     )
+
+
+def vector(values: Iterable[float], spec: str = "") -> str:
+    """An MJCF vector attribute ("x y z"), each value formatted with `spec`."""
+    return " ".join(format(v, spec) for v in values)
+
+
+def scenario_parts(name: str, **values: object) -> SceneParts:
+    """A scenario's parts from `assets/scenarios/<name>.xml`, its placeholders filled from `values`.
+
+    The file's root holds one section per `SceneParts` field it uses (`<worldbody>`, `<hand>`, `<assets>`,
+    `<equality>`, `<contact>`), whose children are the MJCF spliced in; an `<option>` section's attributes are added
+    to the scene's `<option>`.
+    """
+    root = ET.fromstring(Template((ASSETS / "scenarios" / f"{name}.xml").read_text()).substitute(values))
+    known = {f.name for f in fields(SceneParts)}
+    parts = {}
+    for section in root:
+        if section.tag not in known:
+            raise ValueError(f"{name}.xml: unknown section <{section.tag}>; expected one of {sorted(known)}")
+        if section.tag == "option":
+            parts["option"] = " ".join(f'{k}="{v}"' for k, v in section.attrib.items())
+        else:
+            parts[section.tag] = "".join(ET.tostring(child, encoding="unicode") for child in section)
+    return SceneParts(**parts)

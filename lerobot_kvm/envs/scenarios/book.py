@@ -18,7 +18,7 @@ from ..catalogue import SCENARIO_INFOS
 from ..experts import PushExpert
 from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
 from ..scenario import Scenario, StepOutcome, register_scenario
-from ..scene import SceneParts
+from ..scene import SceneParts, scenario_parts, vector
 
 HALF = (0.07, 0.10, 0.015)  # half depth (along the push), half width, half thickness
 START_X = 0.06
@@ -48,27 +48,24 @@ class Book(Scenario):
 
     def parts(self) -> SceneParts:
         hx, hy, hz = HALF
-        c = " ".join(f"{v:.3f}" for v in COVER_RGB["prior"])
-        p = " ".join(f"{v:.3f}" for v in PAGES_RGB)
-        return SceneParts(
-            worldbody=f"""
-    <body name="book" pos="{START_X} 0 {hz}">
-      <freejoint name="book"/>
-      <geom name="book" type="box" size="{hx} {hy} {hz}" mass="0.8" priority="1" friction="0.4 0.005 0.0001"
-            rgba="{p} 1" condim="4"/>
-      <geom name="book_cover_top" type="box" size="{hx + 0.002} {hy + 0.002} 0.0015" pos="0 0 {hz}" contype="0"
-            conaffinity="0" rgba="{c} 1"/>
-      <geom name="book_spine" type="box" size="{hx + 0.002} 0.0015 {hz + 0.0015}" pos="0 {hy + 0.001} 0"
-            contype="0" conaffinity="0" rgba="{c} 1"/>
-      <geom name="book_title" type="box" size="0.03 0.05 0.0003" pos="0.01 0 {hz + 0.0016}" contype="0"
-            conaffinity="0" rgba="0.85 0.75 0.3 1"/>
-      <body name="book_back" pos="{-hx - 0.0015} 0 0.0005">
-        <joint name="book_back" type="slide" axis="1 0 0" range="0 0.008" stiffness="{COVER["prior"][0]}"
-               springyield="{COVER["shifted"][1]}" damping="2"/>
-        <geom name="book_back" type="box" size="0.0015 {hy - 0.005} {hz - 0.001}" mass="0.01" priority="1"
-              friction="0.4 0.005 0.0001" rgba="{c} 1"/>
-      </body>
-    </body>"""
+        return scenario_parts(
+            "book",
+            start_x=START_X,
+            hx=hx,
+            hy=hy,
+            hz=hz,
+            pages=vector(PAGES_RGB, ".3f"),
+            cover=vector(COVER_RGB["prior"], ".3f"),
+            cover_hx=hx + 0.002,
+            cover_hy=hy + 0.002,
+            spine_hz=hz + 0.0015,
+            spine_y=hy + 0.001,
+            title_z=hz + 0.0016,
+            back_x=-hx - 0.0015,
+            stiffness=COVER["prior"][0],
+            yield_=COVER["shifted"][1],
+            back_hy=hy - 0.005,
+            back_hz=hz - 0.001,
         )
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:

@@ -18,7 +18,7 @@ from ..catalogue import SCENARIO_INFOS
 from ..experts import StrokeExpert
 from ..physics import Physics, StrokeCoverage, contact_normal_force, geom_ids, set_free_body_pose
 from ..scenario import Scenario, StepOutcome, register_scenario
-from ..scene import SceneParts
+from ..scene import SceneParts, scenario_parts, vector
 
 HALF = (0.045, 0.045)  # half size of the slice on the table
 BASE_HALF_Z = 0.002
@@ -54,32 +54,23 @@ class CrackerVsBread(Scenario):
 
     def parts(self) -> SceneParts:
         hx, hy = HALF
-        top = " ".join(f"{v:.3f}" for v in TOP_RGB["prior"])
-        side = " ".join(f"{v:.3f}" for v in SIDE_RGB["prior"])
-        stiffness, _, _ = SLICE["prior"]
-        _, _, yield_ = SLICE["shifted"]
-        return SceneParts(
-            worldbody=f"""
-    <body name="slice" pos="0.02 0 {BASE_HALF_Z}">
-      <freejoint name="slice"/>
-      <geom name="slice_base" type="box" size="{hx} {hy} {BASE_HALF_Z}" mass="0.02" priority="1"
-            friction="0.9 0.01 0.001" rgba="{side} 1"/>
-      <geom name="slice_crumb" type="box" size="{hx - 0.001} {hy - 0.001} {CRUMB / 2}"
-            pos="0 0 {BASE_HALF_Z + CRUMB / 2}" contype="0" conaffinity="0" rgba="{side} 1"/>
-      <body name="slice_top" pos="0 0 {BASE_HALF_Z + CRUMB + TOP_HALF_Z}">
-        <joint name="slice_top" type="slide" axis="0 0 -1" range="0 0.008" stiffness="{stiffness}"
-               springyield="{yield_}" damping="4" solreflimit="0.004 1"/>
-        <geom name="slice_top" type="box" size="{hx - 0.001} {hy - 0.001} {TOP_HALF_Z}" mass="0.015"
-              priority="1" friction="0.3 0.005 0.0001" rgba="{side} 1"/>
-        <geom name="slice_face" type="box" size="{hx - 0.004} {hy - 0.004} 0.0005" pos="0 0 {TOP_HALF_Z}"
-              contype="0" conaffinity="0" rgba="{top} 1"/>
-      </body>
-    </body>""",
-            hand="""
-        <geom name="spreader_handle" type="box" size="0.005 0.005 0.05" pos="0 0 -0.045" mass="0.02"
-              rgba="0.55 0.35 0.2 1"/>
-        <geom name="spreader_blade" type="box" size="0.03 0.012 0.002" pos="0 0 -0.097" mass="0.01"
-              friction="0.3 0.005 0.0001" rgba="0.8 0.8 0.82 1"/>""",
+        return scenario_parts(
+            "cracker_vs_bread",
+            hx=hx,
+            hy=hy,
+            base_hz=BASE_HALF_Z,
+            inner_hx=hx - 0.001,
+            inner_hy=hy - 0.001,
+            crumb_hz=CRUMB / 2,
+            crumb_z=BASE_HALF_Z + CRUMB / 2,
+            top_z=BASE_HALF_Z + CRUMB + TOP_HALF_Z,
+            top_hz=TOP_HALF_Z,
+            face_hx=hx - 0.004,
+            face_hy=hy - 0.004,
+            stiffness=SLICE["prior"][0],
+            yield_=SLICE["shifted"][2],
+            side=vector(SIDE_RGB["prior"], ".3f"),
+            top=vector(TOP_RGB["prior"], ".3f"),
         )
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:

@@ -20,7 +20,7 @@ import numpy as np
 from ..catalogue import SCENARIO_INFOS
 from ..physics import Physics, geom_ids
 from ..scenario import Expert, Scenario, StepOutcome, register_scenario
-from ..scene import SceneParts
+from ..scene import SceneParts, scenario_parts, vector
 
 FRONT_X = 0.0  # drawer front face (world x) when closed
 KNOB = (0.035, 0.0, 0.05)  # knob centre (world) when closed
@@ -135,40 +135,18 @@ class Drawer(Scenario):
     }
 
     def parts(self) -> SceneParts:
-        kx, ky, kz = KNOB
-        hx, hy, hz = KNOB_HALF
-        rgb = " ".join(f"{v:.3f}" for v in _RGB)
-        # Cabinet: visual/robot-collidable shell that never touches the drawer (contype 4, conaffinity 1).
-        # Drawer: touches the robot (conaffinity 1) but not the cabinet. Catch and tab: their own bit 8.
-        cab = 'contype="4" conaffinity="1" rgba="0.42 0.30 0.20 1"'
-        drw = f'contype="2" conaffinity="1" rgba="{rgb} 1"'
-        return SceneParts(
-            worldbody=f"""
-    <body name="cabinet" pos="-0.11 0 0">
-      <geom name="cab_top" type="box" size="0.11 0.085 0.006" pos="0 0 0.096" {cab}/>
-      <geom name="cab_floor" type="box" size="0.11 0.085 0.003" pos="0 0 0.003" {cab}/>
-      <geom name="cab_left" type="box" size="0.11 0.006 0.05" pos="0 0.079 0.05" {cab}/>
-      <geom name="cab_right" type="box" size="0.11 0.006 0.05" pos="0 -0.079 0.05" {cab}/>
-      <geom name="cab_back" type="box" size="0.006 0.085 0.05" pos="-0.104 0 0.05" {cab}/>
-      <geom name="catch" type="box" size="0.004 0.03 0.0025" pos="-0.056 0 0.0025" contype="8" conaffinity="8"
-            rgba="0.42 0.30 0.20 1"/>
-    </body>
-    <body name="drawer" pos="{FRONT_X} 0 0">
-      <joint name="drawer_x" type="slide" axis="1 0 0" range="0 0.15" damping="6" frictionloss="1"/>
-      <joint name="drawer_z" type="slide" axis="0 0 1" range="0 0.008" damping="2"/>
-      <geom name="drawer_front" type="box" size="0.006 0.072 0.04" pos="-0.006 0 0.048" mass="0.15" {drw}/>
-      <geom name="drawer_bottom" type="box" size="0.09 0.068 0.003" pos="-0.096 0 0.011" mass="0.15" {drw}/>
-      <geom name="drawer_side_l" type="box" size="0.09 0.003 0.03" pos="-0.096 0.066 0.04" mass="0.05" {drw}/>
-      <geom name="drawer_side_r" type="box" size="0.09 0.003 0.03" pos="-0.096 -0.066 0.04" mass="0.05" {drw}/>
-      <geom name="drawer_back" type="box" size="0.003 0.068 0.03" pos="-0.183 0 0.04" mass="0.05" {drw}/>
-      <geom name="tab" type="box" size="0.004 0.02 0.003" pos="-0.175 0 0.005"
-            contype="8" conaffinity="8" mass="0.01" rgba="{rgb} 1"/>
-      <geom name="stem" type="box" size="{kx - hx:.4f} 0.005 0.005" pos="{(kx - hx):.4f} 0 {kz}" mass="0.01"
-            {drw}/>
-      <geom name="knob" type="box" size="{hx} {hy} {hz}" pos="{kx} {ky} {kz}" mass="0.03" priority="1"
-            friction="1.2 0.01 0.001" contype="2" conaffinity="1"
-            rgba="{_KNOB_RGB[0]} {_KNOB_RGB[1]} {_KNOB_RGB[2]} 1"/>
-    </body>""",
+        rgb = vector(_RGB, ".3f")
+        return scenario_parts(
+            "drawer",
+            cab='contype="4" conaffinity="1" rgba="0.42 0.30 0.20 1"',
+            drw=f'contype="2" conaffinity="1" rgba="{rgb} 1"',
+            front_x=FRONT_X,
+            rgb=rgb,
+            stem=f"{KNOB[0] - KNOB_HALF[0]:.4f}",
+            kz=KNOB[2],
+            knob_half=vector(KNOB_HALF),
+            knob=vector(KNOB),
+            knob_rgb=vector(_KNOB_RGB),
         )
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:

@@ -10,7 +10,7 @@ from ..experts import GraspLiftExpert
 from ..grasp_lift import GraspLiftScenario
 from ..physics import Physics, geom_ids, max_pair_force, set_free_body_pose
 from ..scenario import StepOutcome, register_scenario
-from ..scene import SceneParts
+from ..scene import SceneParts, scenario_parts, vector
 
 RADII = (0.024, 0.024, 0.031)
 STONE_RGB = np.array([0.72, 0.68, 0.62])
@@ -26,15 +26,7 @@ class EggVsStone(GraspLiftScenario):
     body, rest_z, lift_height = "object", RADII[2], LIFT_HEIGHT
 
     def parts(self) -> SceneParts:
-        r = " ".join(str(v) for v in RADII)
-        return SceneParts(
-            worldbody=f"""
-    <body name="object" pos="0 0 {RADII[2]}">
-      <freejoint name="object"/>
-      <geom name="object" type="ellipsoid" size="{r}" mass="0.2" priority="1" friction="0.9 0.01 0.001"
-            rgba="{STONE_RGB[0]} {STONE_RGB[1]} {STONE_RGB[2]} 1" condim="4"/>
-    </body>"""
-        )
+        return scenario_parts("egg_vs_stone", rz=RADII[2], radii=vector(RADII), rgb=vector(STONE_RGB))
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
         super().reset(model, data, variant, rng)

@@ -17,7 +17,7 @@ from ..catalogue import SCENARIO_INFOS
 from ..experts import StrokeExpert
 from ..physics import Physics, StrokeCoverage, contact_normal_force, geom_ids
 from ..scenario import Scenario, StepOutcome, register_scenario
-from ..scene import SceneParts
+from ..scene import SceneParts, scenario_parts, vector
 
 PAPER_HALF = (0.07, 0.05, 0.0005)
 PAPER_TOP = 2 * PAPER_HALF[2]
@@ -50,24 +50,15 @@ class PenVsBrush(Scenario):
 
     def parts(self) -> SceneParts:
         hx, hy, hz = PAPER_HALF
-        stiffness, _, _ = TIP["prior"]
-        _, _, yield_ = TIP["shifted"]
-        barrel = " ".join(f"{v:.3f}" for v in BARREL_RGB["prior"])
-        tip = " ".join(f"{v:.3f}" for v in TIP_RGB["prior"])
-        return SceneParts(
-            worldbody=f"""
-    <geom name="paper" type="box" size="{hx} {hy} {hz}" pos="0.02 0 {hz}" friction="0.4 0.005 0.0001"
-          rgba="0.96 0.96 0.94 1"/>""",
-            hand=f"""
-        <geom name="tool_barrel" type="cylinder" size="0.007 0.045" pos="0 0 -0.04" mass="0.02" rgba="{barrel} 1"/>
-        <geom name="tool_ferrule" type="cylinder" size="0.0055 0.004" pos="0 0 -0.089" mass="0.002"
-              rgba="0.75 0.75 0.78 1"/>
-        <body name="tool_tip" pos="0 0 -0.093" gravcomp="1">
-          <joint name="tool_tip" type="slide" axis="0 0 1" range="0 0.012" stiffness="{stiffness}"
-                 springyield="{yield_}" damping="1" solreflimit="0.004 1"/>
-          <geom name="tool_tip" type="capsule" size="0.004 0.005" mass="0.01" priority="1"
-                friction="0.3 0.005 0.0001" rgba="{tip} 1"/>
-        </body>""",
+        return scenario_parts(
+            "pen_vs_brush",
+            hx=hx,
+            hy=hy,
+            hz=hz,
+            stiffness=TIP["prior"][0],
+            yield_=TIP["shifted"][2],
+            barrel=vector(BARREL_RGB["prior"], ".3f"),
+            tip=vector(TIP_RGB["prior"], ".3f"),
         )
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:

@@ -15,7 +15,7 @@ import numpy as np
 from ..catalogue import SCENARIO_INFOS
 from ..physics import Physics, set_free_body_pose
 from ..scenario import Expert, Scenario, StepOutcome, register_scenario
-from ..scene import SceneParts
+from ..scene import SceneParts, scenario_parts, vector
 
 HALF_X = 0.05  # plate half depth along x (the fingers slide in along +x)
 HALF_Y = 0.095  # plate half width along y
@@ -122,34 +122,29 @@ class Plate(Scenario):
     skills = {"rim_lift": RimLiftExpert, "support_lift": SupportLiftExpert}
 
     def parts(self) -> SceneParts:
-        rgb = " ".join(f"{v:.3f}" for v in PLATE_RGB["prior"])
         strip_half = (HINGE_Y + HALF_Y) / 2
         main_half = (HALF_Y - HINGE_Y) / 2
-        return SceneParts(
-            worldbody=f"""
-    <geom name="stand" type="cylinder" size="0.03 {STAND_H / 2}" pos="{X0} 0 {STAND_H / 2}" rgba="0.45 0.3 0.2 1"/>
-    <body name="plate_rim" pos="{X0} {-HALF_Y + strip_half} {STAND_H + FLOOR}">
-      <freejoint name="plate_rim"/>
-      <geom name="plate_rim" type="box" size="{HALF_X} {strip_half} {FLOOR}" mass="0.03" priority="1"
-            friction="0.6 0.005 0.0001" rgba="{rgb} 1"/>
-      <geom name="plate_lip" type="box" size="{HALF_X - 0.005} {LIP_T} {LIP_H}" pos="0 {-strip_half + LIP_T} {LIP_H}"
-            mass="0.005" priority="1" friction="1.0 0.01 0.001" solref="0.004 1" rgba="{rgb} 1"/>
-      <body name="plate" pos="0 {strip_half} 0">
-        <joint name="plate_fold" type="hinge" axis="1 0 0" stiffness="0.05" damping="0.005" range="-1.5 1.5"/>
-        <geom name="plate" type="box" size="{HALF_X} {main_half} {FLOOR}" pos="0 {main_half} 0" mass="0.17"
-              priority="1" friction="0.6 0.005 0.0001" rgba="{rgb} 1"/>
-        <geom name="plate_rim_far" type="box" size="{HALF_X} 0.002 0.004" pos="0 {2 * main_half - 0.002} 0.004"
-              contype="0" conaffinity="0" rgba="{rgb} 1"/>
-      </body>
-    </body>
-    <body name="cake" pos="{X0} 0.02 {STAND_H + 2 * FLOOR + CAKE[2]}">
-      <freejoint name="cake"/>
-      <geom name="cake" type="box" size="{CAKE[0]} {CAKE[1]} {CAKE[2]}" mass="0.06" priority="1"
-            friction="0.5 0.005 0.0001" rgba="0.55 0.32 0.2 1"/>
-      <geom name="cake_icing" type="box" size="{CAKE[0]} {CAKE[1]} 0.002" pos="0 0 {CAKE[2]}" contype="0"
-            conaffinity="0" rgba="0.95 0.9 0.85 1"/>
-    </body>""",
-            equality='<joint name="plate_rigid" joint1="plate_fold" polycoef="0 0 0 0 0" solref="0.005 1"/>',
+        return scenario_parts(
+            "plate",
+            x0=X0,
+            stand_hz=STAND_H / 2,
+            rim_y=-HALF_Y + strip_half,
+            plate_z=STAND_H + FLOOR,
+            hx=HALF_X,
+            strip_half=strip_half,
+            floor=FLOOR,
+            lip_hx=HALF_X - 0.005,
+            lip_t=LIP_T,
+            lip_h=LIP_H,
+            lip_y=-strip_half + LIP_T,
+            main_half=main_half,
+            far_y=2 * main_half - 0.002,
+            cake_z=STAND_H + 2 * FLOOR + CAKE[2],
+            cake=vector(CAKE),
+            cake_hx=CAKE[0],
+            cake_hy=CAKE[1],
+            cake_hz=CAKE[2],
+            rgb=vector(PLATE_RGB["prior"], ".3f"),
         )
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:

@@ -17,7 +17,7 @@ from ..catalogue import SCENARIO_INFOS
 from ..experts import PushExpert
 from ..physics import Physics, set_free_body_pose
 from ..scenario import Scenario, StepOutcome, register_scenario
-from ..scene import SceneParts
+from ..scene import SceneParts, scenario_parts, vector
 
 RADIUS = 0.032
 HALF_HEIGHT = 0.075  # bottle body; the neck and cap add 3 cm on top
@@ -72,27 +72,21 @@ class SodaBottle(Scenario):
     }
 
     def parts(self) -> SceneParts:
-        r, hh = RADIUS, HALF_HEIGHT
-        rgb = " ".join(f"{v:.3f}" for v in BOTTLE_RGB)
         h = 2 * HALF_HEIGHT
         shell = SHELL_MASS * np.array([RADIUS**2 / 2 + h**2 / 12, 0.0, RADIUS**2])
-        return SceneParts(
-            worldbody=f"""
-    <body name="bottle" pos="{START_X} 0 {hh}">
-      <freejoint name="bottle"/>
-      <inertial pos="0 0 {SHELL_COM}" mass="{SHELL_MASS}" diaginertia="{shell[0]:.3e} {shell[0]:.3e} {shell[2]:.3e}"/>
-      <geom name="bottle" type="cylinder" size="{r} {hh}" priority="1" friction="0.4 0.005 0.0001"
-            rgba="{rgb} 1" condim="4"/>
-      <geom name="bottle_neck" type="cylinder" size="0.013 0.0125" pos="0 0 {hh + 0.0125}" priority="1"
-            friction="0.4 0.005 0.0001" rgba="{rgb} 1"/>
-      <geom name="bottle_cap" type="cylinder" size="0.014 0.006" pos="0 0 {hh + 0.028}" contype="0"
-            conaffinity="0" rgba="0.8 0.1 0.1 1"/>
-      <geom name="bottle_label" type="cylinder" size="{r + 0.0008} 0.025" pos="0 0 0.01" contype="0"
-            conaffinity="0" rgba="0.85 0.15 0.12 1"/>
-      <body name="liquid" pos="0 0 {LIQUID_COM}">
-        <inertial pos="0 0 0" mass="0.5" diaginertia="0.001 0.001 0.0003"/>
-      </body>
-    </body>"""
+        return scenario_parts(
+            "soda_bottle",
+            start_x=START_X,
+            hh=HALF_HEIGHT,
+            r=RADIUS,
+            rgb=vector(BOTTLE_RGB, ".3f"),
+            shell_com=SHELL_COM,
+            shell_mass=SHELL_MASS,
+            shell_inertia=vector(shell[[0, 0, 2]], ".3e"),
+            neck_z=HALF_HEIGHT + 0.0125,
+            cap_z=HALF_HEIGHT + 0.028,
+            label_r=RADIUS + 0.0008,
+            liquid_com=LIQUID_COM,
         )
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:

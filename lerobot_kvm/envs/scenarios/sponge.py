@@ -18,7 +18,7 @@ from ..experts import GraspLiftExpert
 from ..grasp_lift import GraspLiftScenario
 from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
 from ..scenario import StepOutcome, register_scenario
-from ..scene import SceneParts
+from ..scene import SceneParts, scenario_parts, vector
 
 HALF = (0.045, 0.03, 0.02)  # sponge half extents (m)
 SPONGE_RGB = np.array([0.93, 0.80, 0.25])
@@ -46,16 +46,7 @@ class Sponge(GraspLiftScenario):
     grasp = {"liftoff": LIFTOFF, "liftoff_step": LIFTOFF_STEP, "top": HAND_TOP}
 
     def parts(self) -> SceneParts:
-        h = " ".join(str(v) for v in HALF)
-        rgb = " ".join(str(v) for v in SPONGE_RGB)
-        return SceneParts(
-            worldbody=f"""
-    <body name="sponge" pos="0 0 {HALF[2]}">
-      <freejoint name="sponge"/>
-      <geom name="sponge" type="box" size="{h}" mass="0.04" priority="1" friction="1.0 0.01 0.001"
-            condim="4" rgba="{rgb} 1"/>
-    </body>"""
-        )
+        return scenario_parts("sponge", hz=HALF[2], half=vector(HALF), rgb=vector(SPONGE_RGB))
 
     def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
         super().reset(model, data, variant, rng)
