@@ -75,6 +75,23 @@ def robot_in_contact(data: mujoco.MjData, robot: np.ndarray) -> bool:
     return bool(np.any(robot[c.geom1] != robot[c.geom2]))
 
 
+def yielding_spring(
+    model: mujoco.MjModel, joint: str, stiffness: float, elastic_limit: float, travel: float | None = None
+) -> int:
+    """Give `joint` an elasto-plastic spring (MuJoCo `springyield`): `stiffness`, deflection beyond which it yields
+    for good and, if given, a range of [0, `travel`]. Returns the address of its permanent set in `data.plastic`."""
+    jnt = model.joint(joint).id
+    model.jnt_stiffness[jnt], model.jnt_springyield[jnt] = stiffness, elastic_limit
+    if travel is not None:
+        model.jnt_range[jnt] = [0.0, travel]
+    return int(model.jnt_plasticadr[jnt])
+
+
+def permanent_set(data: mujoco.MjData, *plastic: int) -> float:
+    """The largest permanent deformation among the yielding springs at these `data.plastic` addresses."""
+    return max(abs(float(data.plastic[a])) for a in plastic)
+
+
 class StrokeCoverage:
     """Which of `bins` equal parts of a stroke a tool has swept while touching: a part counts once the tool, in
     contact at two consecutive steps, moved across it (positions in bins from the stroke's start)."""

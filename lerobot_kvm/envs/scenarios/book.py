@@ -16,7 +16,7 @@ import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
 from ..experts import PushExpert
-from ..physics import Physics, contact_normal_force, geom_ids, set_free_body_pose
+from ..physics import Physics, contact_normal_force, geom_ids, permanent_set, set_free_body_pose, yielding_spring
 from ..scenario import Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts, scenario_parts, vector
 
@@ -73,9 +73,7 @@ class Book(Scenario):
         self._gid = model.geom("book").id
         self._book = geom_ids(model, "book", "book_back")
         self._robot = geom_ids(model, "finger_l", "finger_r", "palm")
-        jnt = model.joint("book_back").id
-        self._plastic = model.jnt_plasticadr[jnt]
-        model.jnt_stiffness[jnt], model.jnt_springyield[jnt] = COVER[variant]
+        self._plastic = yielding_spring(model, "book_back", *COVER[variant])
         mass = BOOK_MASS[variant]
         model.body_mass[self._bid] = mass
         hx, hy, hz = HALF
@@ -101,7 +99,7 @@ class Book(Scenario):
         m, d = physics.model, physics.data
         force = contact_normal_force(d, m, self._book, self._robot)
         self.peak_force = max(self.peak_force, force)
-        self.dent = abs(float(d.plastic[self._plastic]))
+        self.dent = permanent_set(d, self._plastic)
         if self.dent > CREASE:
             m.geom_rgba[m.geom("book_back").id, :3] *= 0.6  # a creased, dented cover
             return StepOutcome(catastrophe="damage")

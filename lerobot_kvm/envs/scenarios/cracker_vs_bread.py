@@ -16,7 +16,15 @@ import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
 from ..experts import StrokeExpert
-from ..physics import Physics, StrokeCoverage, contact_normal_force, geom_ids, set_free_body_pose
+from ..physics import (
+    Physics,
+    StrokeCoverage,
+    contact_normal_force,
+    geom_ids,
+    permanent_set,
+    set_free_body_pose,
+    yielding_spring,
+)
 from ..scenario import Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts, scenario_parts, vector
 
@@ -77,10 +85,8 @@ class CrackerVsBread(Scenario):
         self._bid = model.body("slice").id
         self._slice = geom_ids(model, "slice_top", "slice_base")
         self._blade = geom_ids(model, "spreader_blade")
-        jnt = model.joint("slice_top").id
-        model.jnt_stiffness[jnt], travel, model.jnt_springyield[jnt] = SLICE[variant]
-        model.jnt_range[jnt] = [0.0, travel]
-        self._plastic = model.jnt_plasticadr[jnt]
+        stiffness, travel, elastic_limit = SLICE[variant]
+        self._plastic = yielding_spring(model, "slice_top", stiffness, elastic_limit, travel)
         jitter = rng.uniform(-0.015, 0.015, 3)
         for name in ("slice_base", "slice_crumb", "slice_top"):
             model.geom_rgba[model.geom(name).id] = [*(SIDE_RGB[variant] + jitter), 1.0]
@@ -93,7 +99,7 @@ class CrackerVsBread(Scenario):
 
     def evaluate(self, physics: Physics) -> StepOutcome:
         m, d = physics.model, physics.data
-        self.flattening = abs(float(d.plastic[self._plastic]))
+        self.flattening = permanent_set(d, self._plastic)
         if self.flattening > CRUSH:
             m.geom_rgba[m.geom("slice_face").id, :3] *= 0.85  # squashed, torn crumb
             return StepOutcome(catastrophe="crush")

@@ -15,7 +15,7 @@ import numpy as np
 from ..catalogue import SCENARIO_INFOS
 from ..experts import GraspLiftExpert
 from ..grasp_lift import GraspLiftScenario
-from ..physics import Physics, set_free_body_pose
+from ..physics import Physics, permanent_set, set_free_body_pose, yielding_spring
 from ..scenario import StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -79,13 +79,7 @@ class PaperTowelRoll(GraspLiftScenario):
         self._bid = model.body("roll").id
         mass, stiffness, travel, yield_ = ROLL[variant]
         model.body_mass[self._bid] = mass
-        self._plastic = []
-        for side in "lr":
-            jnt = model.joint(f"layers_{side}").id
-            model.jnt_stiffness[jnt] = stiffness
-            model.jnt_range[jnt] = [0.0, travel]
-            model.jnt_springyield[jnt] = yield_
-            self._plastic.append(model.jnt_plasticadr[jnt])
+        self._plastic = [yielding_spring(model, f"layers_{side}", stiffness, yield_, travel) for side in "lr"]
         mujoco.mj_setConst(model, data)  # subtree masses and constraint weights follow the new mass
         rgb = PAPER_RGB + rng.uniform(-0.015, 0.015, 3)
         for name in ("roll_base", "roll_outer", "layers_l", "layers_r"):
@@ -99,7 +93,7 @@ class PaperTowelRoll(GraspLiftScenario):
 
     def evaluate(self, physics: Physics) -> StepOutcome:
         d = physics.data
-        self.flattening = max(abs(float(d.plastic[a])) for a in self._plastic)
+        self.flattening = permanent_set(d, *self._plastic)
         if self.flattening > CRUSH:
             return StepOutcome(catastrophe="crush")
         return self.held_aloft(physics)

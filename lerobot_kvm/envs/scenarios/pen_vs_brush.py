@@ -15,7 +15,7 @@ import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
 from ..experts import StrokeExpert
-from ..physics import Physics, StrokeCoverage, contact_normal_force, geom_ids
+from ..physics import Physics, StrokeCoverage, contact_normal_force, geom_ids, permanent_set, yielding_spring
 from ..scenario import Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts, scenario_parts, vector
 
@@ -65,10 +65,8 @@ class PenVsBrush(Scenario):
         self._paper = geom_ids(model, "paper")
         self._tip = geom_ids(model, "tool_tip")
         self._paper_x = float(model.geom("paper").pos[0])
-        jnt = model.joint("tool_tip").id
-        model.jnt_stiffness[jnt], travel, model.jnt_springyield[jnt] = TIP[variant]
-        model.jnt_range[jnt] = [0.0, travel]
-        self._plastic = model.jnt_plasticadr[jnt]
+        stiffness, travel, elastic_limit = TIP[variant]
+        self._plastic = yielding_spring(model, "tool_tip", stiffness, elastic_limit, travel)
         jitter = rng.uniform(-0.015, 0.015, 3)
         model.geom_rgba[model.geom("tool_barrel").id] = [*(BARREL_RGB[variant] + jitter), 1.0]
         model.geom_rgba[model.geom("tool_tip").id] = [*(TIP_RGB[variant] + jitter), 1.0]
@@ -80,7 +78,7 @@ class PenVsBrush(Scenario):
 
     def evaluate(self, physics: Physics) -> StepOutcome:
         m, d = physics.model, physics.data
-        self.bend = abs(float(d.plastic[self._plastic]))
+        self.bend = permanent_set(d, self._plastic)
         if self.bend > BENT:
             return StepOutcome(catastrophe="damage")
         self.force = contact_normal_force(d, m, self._paper, self._tip)

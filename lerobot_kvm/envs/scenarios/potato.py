@@ -16,7 +16,7 @@ import numpy as np
 from ..catalogue import SCENARIO_INFOS
 from ..experts import GraspLiftExpert
 from ..grasp_lift import GraspLiftScenario
-from ..physics import Physics, geom_ids, set_free_body_pose
+from ..physics import Physics, geom_ids, permanent_set, set_free_body_pose, yielding_spring
 from ..scenario import StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -71,14 +71,10 @@ class Potato(GraspLiftScenario):
         self._bid = model.body("potato").id
         self._fingers = geom_ids(model, "finger_l", "finger_r")
         self._pads = geom_ids(model, "potato_pad_l", "potato_pad_r")
-        jnts = [model.joint(f"potato_flesh_{s}").id for s in "lr"]
-        self._plastic = [int(model.jnt_plasticadr[j]) for j in jnts]
         mass, stiffness, limit = FLESH[variant]
+        self._plastic = [yielding_spring(model, f"potato_flesh_{s}", stiffness, limit) for s in "lr"]
         pads_mass = 2 * model.body_mass[model.body("potato_pad_l").id]
         model.body_mass[self._bid] = mass - pads_mass
-        for j in jnts:
-            model.jnt_stiffness[j] = stiffness
-            model.jnt_springyield[j] = limit
         rgb = SKIN_RGB + rng.uniform(-0.02, 0.02, 3)
         model.geom_rgba[self._gid] = [*rgb, 1.0]
         xy = rng.uniform(-0.012, 0.012, 2)
@@ -86,7 +82,7 @@ class Potato(GraspLiftScenario):
 
     def dent(self, data: mujoco.MjData) -> float:
         """Permanent deformation (m) of the deeper-dented pad."""
-        return float(max(abs(data.plastic[a]) for a in self._plastic))
+        return permanent_set(data, *self._plastic)
 
     def evaluate(self, physics: Physics) -> StepOutcome:
         m, d = physics.model, physics.data
