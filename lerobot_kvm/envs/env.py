@@ -96,7 +96,7 @@ class KvmObsolescenceEnv(gym.Env):
             self.variant = options["variant"]
             self.task_description = self.scenario.info.instruction(self.variant, self.instruction)
         mujoco.mj_resetData(self.model, self.data)
-        self.scenario.reset(self.model, self.data, self.variant, self.np_random)
+        self.scenario.reset(self.physics, self.variant, self.np_random)
         mujoco.mj_forward(self.model, self.data)
         self.grip_applied = -1.0
         self.arm_target = self.sensors.arm_position(self.data)

@@ -2,7 +2,6 @@
 
 from typing import Any, ClassVar
 
-import mujoco
 import numpy as np
 
 from .physics import Physics
@@ -25,8 +24,8 @@ class GraspLiftScenario(Scenario):
     lift_height: ClassVar[float]
     grasp: ClassVar[dict[str, Any]] = {}
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
-        self._lifted_body = model.body(self.body).id
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        self._lifted_body = physics.model.body(self.body).id
         self._held = 0
 
     def lifted(self, physics: Physics) -> bool:

@@ -10,7 +10,6 @@ from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import mujoco
 import numpy as np
 
 from .catalogue import SCENARIO_INFOS, ScenarioInfo
@@ -51,7 +50,7 @@ class Scenario(abc.ABC):
         """MJCF fragments for this scenario's objects."""
 
     @abc.abstractmethod
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
         """Apply the variant's hidden parameters and randomised nuisance; called after mj_resetData."""
 
     @abc.abstractmethod

@@ -68,7 +68,8 @@ class Book(Scenario):
             back_hz=hz - 0.001,
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        model, data = physics.model, physics.data
         self._bid = model.body("book").id
         self._gid = model.geom("book").id
         self._book = geom_ids(model, "book", "book_back")

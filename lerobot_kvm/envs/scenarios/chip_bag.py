@@ -14,7 +14,6 @@ way under the same grip command.
 
 from functools import partial
 
-import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
@@ -94,8 +93,9 @@ class ChipBag(GraspLiftScenario):
     </body>"""
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
-        super().reset(model, data, variant, rng)
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        super().reset(physics, variant, rng)
+        model, data = physics.model, physics.data
         self._chips = [geom_ids(model, f"chip_{i}") for i in range(N_CHIPS)]
         self._chip_gids = [model.geom(f"chip_{i}").id for i in range(N_CHIPS)]
         self._walls = geom_ids(model, "panel_l", "panel_r")

@@ -66,12 +66,13 @@ class Clothing(GraspLiftScenario):
     </body>"""
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        model, data = physics.model, physics.data
         # The shirt rests untouched until the gripper reaches it; the engine skips resting bodies while they sleep.
         if not model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_SLEEP:
             model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_SLEEP
             mujoco.mj_resetData(model, data)  # sets up the sleep bookkeeping the first reset ran without
-        super().reset(model, data, variant, rng)
+        super().reset(physics, variant, rng)
         names = ["collar", *(f"panel_{i}" for i in range(1, N_PANELS + 1))]
         self._gids = [model.geom(n).id for n in names]
         self._bids = [model.body(n).id for n in names]

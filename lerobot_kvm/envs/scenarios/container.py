@@ -122,8 +122,9 @@ class Container(GraspLiftScenario):
             option='solver="CG" iterations="30" tolerance="1e-6"',
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
-        super().reset(model, data, variant, rng)
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        super().reset(physics, variant, rng)
+        model, data = physics.model, physics.data
         # Particle scene: CG with a pyramidal cone (the shared <option> fixes cone="elliptic" in its XML).
         model.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
         self._n = N_DROPS

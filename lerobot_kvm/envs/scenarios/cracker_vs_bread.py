@@ -11,7 +11,6 @@ works on both.
 from functools import partial
 from typing import Any
 
-import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
@@ -81,7 +80,8 @@ class CrackerVsBread(Scenario):
             top=vector(TOP_RGB["prior"], ".3f"),
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        model, data = physics.model, physics.data
         self._bid = model.body("slice").id
         self._slice = geom_ids(model, "slice_top", "slice_base")
         self._blade = geom_ids(model, "spreader_blade")

@@ -149,7 +149,8 @@ class Drawer(Scenario):
             knob_rgb=vector(_KNOB_RGB),
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        model = physics.model
         self._knob = geom_ids(model, "knob")
         self._fingers = geom_ids(model, "finger_l", "finger_r", "palm")
         self._jx = model.joint("drawer_x")

@@ -2,7 +2,6 @@
 
 from functools import partial
 
-import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
@@ -28,8 +27,9 @@ class EggVsStone(GraspLiftScenario):
     def parts(self) -> SceneParts:
         return scenario_parts("egg_vs_stone", rz=RADII[2], radii=vector(RADII), rgb=vector(STONE_RGB))
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
-        super().reset(model, data, variant, rng)
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        super().reset(physics, variant, rng)
+        model, data = physics.model, physics.data
         self._object = geom_ids(model, "object")
         self._fingers = (geom_ids(model, "finger_l"), geom_ids(model, "finger_r"))
         self._gid = next(iter(self._object))

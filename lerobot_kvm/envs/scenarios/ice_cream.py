@@ -172,7 +172,8 @@ class IceCream(Scenario):
     </body>{particles}""",
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        model, data = physics.model, physics.data
         # The shared scene fixes cone="elliptic" in XML; a particle scene runs much faster with pyramidal cones.
         model.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
         n = len(LATTICE)

@@ -74,8 +74,9 @@ class PaperTowelRoll(GraspLiftScenario):
     </body>"""
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
-        super().reset(model, data, variant, rng)
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        super().reset(physics, variant, rng)
+        model, data = physics.model, physics.data
         self._bid = model.body("roll").id
         mass, stiffness, travel, yield_ = ROLL[variant]
         model.body_mass[self._bid] = mass

@@ -10,7 +10,6 @@ splayed, read from `data.plastic`. A light, force-regulated touch draws with eit
 from functools import partial
 from typing import Any
 
-import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
@@ -61,7 +60,8 @@ class PenVsBrush(Scenario):
             tip=vector(TIP_RGB["prior"], ".3f"),
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        model = physics.model
         self._paper = geom_ids(model, "paper")
         self._tip = geom_ids(model, "tool_tip")
         self._paper_x = float(model.geom("paper").pos[0])

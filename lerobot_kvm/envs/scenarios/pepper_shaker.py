@@ -169,7 +169,8 @@ class PepperShaker(Scenario):
             option='solver="CG" iterations="30" tolerance="1e-6"',
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        model, data = physics.model, physics.data
         model.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL  # particle scene (the shared <option> says elliptic)
         self._sid = model.body("shaker").id
         self._grains = np.array([model.body(f"grain_{n}").id for n in range(N_GRAINS)])

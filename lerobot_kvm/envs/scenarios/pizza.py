@@ -131,7 +131,8 @@ class Pizza(Scenario):
     </body>{peps}""",
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        model, data = physics.model, physics.data
         # The slice rests untouched until the gripper reaches it; the engine skips resting bodies while they sleep.
         if not model.opt.enableflags & mujoco.mjtEnableBit.mjENBL_SLEEP:
             model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_SLEEP

@@ -147,7 +147,8 @@ class Plate(Scenario):
             rgb=vector(PLATE_RGB["prior"], ".3f"),
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        model, data = physics.model, physics.data
         main, strip, locked, stiffness = PLATE[variant]
         self._plate = model.body("plate").id
         self._rim = model.body("plate_rim").id

@@ -65,8 +65,9 @@ class Potato(GraspLiftScenario):
     <exclude body1="potato" body2="finger_r"/>""",
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
-        super().reset(model, data, variant, rng)
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        super().reset(physics, variant, rng)
+        model, data = physics.model, physics.data
         self._gid = model.geom("potato").id
         self._bid = model.body("potato").id
         self._fingers = geom_ids(model, "finger_l", "finger_r")

@@ -201,7 +201,8 @@ class Pouring(Scenario):
             option='solver="CG" tolerance="1e-6"',
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        model, data = physics.model, physics.data
         model.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL  # particle scenes: CG + pyramidal cone for speed
         self._drag, rgba = LIQUID[variant]
         rgba = np.array(rgba)

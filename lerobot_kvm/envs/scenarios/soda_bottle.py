@@ -89,7 +89,8 @@ class SodaBottle(Scenario):
             liquid_com=LIQUID_COM,
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        model, data = physics.model, physics.data
         self._bid = model.body("bottle").id
         # Only masses and inertias change: moving body_ipos would misplace the body's collision bounds.
         liquid = model.body("liquid").id

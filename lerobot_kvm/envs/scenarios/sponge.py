@@ -48,8 +48,9 @@ class Sponge(GraspLiftScenario):
     def parts(self) -> SceneParts:
         return scenario_parts("sponge", hz=HALF[2], half=vector(HALF), rgb=vector(SPONGE_RGB))
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
-        super().reset(model, data, variant, rng)
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        super().reset(physics, variant, rng)
+        model, data = physics.model, physics.data
         self._gid = model.geom("sponge").id
         self._bid = model.body("sponge").id
         self._sponge = geom_ids(model, "sponge")

@@ -154,7 +154,8 @@ class ToothpickDispenser(Scenario):
             option='jacobian="sparse"',  # ~3x faster constraint solve for eight free toothpicks
         )
 
-    def reset(self, model: mujoco.MjModel, data: mujoco.MjData, variant: str, rng: np.random.Generator) -> None:
+    def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
+        model, data = physics.model, physics.data
         model.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL  # faster with many light bodies (shared XML says elliptic)
         self._did = model.body("dispenser").id
         self._picks = np.array([model.body(f"pick_{k}").id for k in range(N_PICKS)])
