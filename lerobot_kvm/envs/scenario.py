@@ -64,8 +64,9 @@ class Scenario(abc.ABC):
         return self.skills[skill](**self.expert_context())
 
     def expert_context(self) -> dict[str, Any]:
-        """Keyword arguments every skill's expert is built with besides its own parameters: what a demonstrator
-        sees beyond the physics (the scenario itself) or the scenario's grasp; none by default."""
+        """Keyword arguments every skill's expert is built with besides its own parameters: what the scenario
+        shares with all its skills (the body to grasp or push, the line to stroke, or the scenario itself for a
+        demonstrator that watches its state); none by default."""
         return {}
 
 
