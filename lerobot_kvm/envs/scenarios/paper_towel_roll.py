@@ -17,7 +17,7 @@ from ..experts import GraspLiftExpert
 from ..grasp_lift import GraspLiftScenario
 from ..physics import Physics, permanent_set, set_free_body_pose, yielding_spring
 from ..scenario import StepOutcome, register_scenario
-from ..scene import SceneParts
+from ..scene import SceneParts, scenario_parts, vector
 
 RADIUS = 0.035
 HALF_HEIGHT = 0.04
@@ -46,32 +46,20 @@ class PaperTowelRoll(GraspLiftScenario):
 
     def parts(self) -> SceneParts:
         r, hh = RADIUS, HALF_HEIGHT
-        rgb = " ".join(f"{v:.3f}" for v in PAPER_RGB)
-        core = " ".join(str(v) for v in CORE_RGBA["prior"])
-        pads = "".join(
-            f"""
-      <body name="layers_{side}" pos="0 {sign * (r - 0.006)} 0">
-        <joint name="layers_{side}" type="slide" axis="0 {-sign} 0" range="0 0.02" stiffness="3000"
-               springyield="{ROLL["shifted"][3]}" damping="3" solreflimit="0.004 1"/>
-        <geom name="layers_{side}" type="box" size="0.016 0.006 {hh - 0.008}" mass="0.015" priority="1"
-              friction="1.0 0.01 0.001" rgba="{rgb} 1"/>
-      </body>"""
-            for side, sign in (("l", 1), ("r", -1))
-        )
-        return SceneParts(
-            worldbody=f"""
-    <body name="roll" pos="0 0 {hh}">
-      <freejoint name="roll"/>
-      <inertial pos="0 0 0" mass="0.12" diaginertia="1.1e-4 1.1e-4 7e-5"/>
-      <geom name="roll_base" type="cylinder" size="{r - 0.001} 0.004" pos="0 0 {-hh + 0.004}" priority="1"
-            friction="1.0 0.01 0.001" rgba="{rgb} 1"/>
-      <geom name="roll_outer" type="cylinder" size="{r - 0.0005} {hh - 0.0005}" contype="0" conaffinity="0"
-            rgba="{rgb} 1"/>
-      <geom name="roll_core" type="cylinder" size="0.016 {hh + 0.0005}" contype="0" conaffinity="0"
-            rgba="{core}"/>
-      <geom name="roll_hole" type="cylinder" size="0.013 {hh + 0.001}" contype="0" conaffinity="0"
-            rgba="0.25 0.23 0.2 1"/>{pads}
-    </body>"""
+        return scenario_parts(
+            "paper_towel_roll",
+            hh=hh,
+            base_r=r - 0.001,
+            base_z=-hh + 0.004,
+            outer_r=r - 0.0005,
+            outer_hh=hh - 0.0005,
+            core_hh=hh + 0.0005,
+            hole_hh=hh + 0.001,
+            layers_y=r - 0.006,
+            layers_hz=hh - 0.008,
+            yield_=ROLL["shifted"][3],
+            rgb=vector(PAPER_RGB, ".3f"),
+            core=vector(CORE_RGBA["prior"]),
         )
 
     def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:

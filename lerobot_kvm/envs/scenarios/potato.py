@@ -18,7 +18,7 @@ from ..experts import GraspLiftExpert
 from ..grasp_lift import GraspLiftScenario
 from ..physics import Physics, geom_ids, permanent_set, set_free_body_pose, yielding_spring
 from ..scenario import StepOutcome, register_scenario
-from ..scene import SceneParts
+from ..scene import SceneParts, scenario_parts, vector
 
 RADII = (0.045, 0.032, 0.028)
 SKIN_RGB = np.array([0.62, 0.47, 0.30])
@@ -42,27 +42,8 @@ class Potato(GraspLiftScenario):
     body, rest_z, lift_height = "potato", RADII[2], LIFT_HEIGHT
 
     def parts(self) -> SceneParts:
-        r = " ".join(str(v) for v in RADII)
-        rgb = " ".join(str(v) for v in SKIN_RGB)
-        pads = ""
-        for side, sign in (("l", 1), ("r", -1)):
-            pads += f"""
-      <body name="potato_pad_{side}" pos="0 {sign * PAD_Y} 0">
-        <joint name="potato_flesh_{side}" type="slide" axis="0 {-sign} 0" range="0 {PAD_TRAVEL}" stiffness="15000"
-               springyield="0.01" damping="20"/>
-        <geom name="potato_pad_{side}" type="box" size="0.012 0.005 0.010" mass="0.03" priority="1"
-              friction="1.0 0.01 0.001" condim="4" solref="0.004 1" rgba="0 0 0 0" group="3"/>
-      </body>"""
-        return SceneParts(
-            worldbody=f"""
-    <body name="potato" pos="0 0 {RADII[2]}">
-      <freejoint name="potato"/>
-      <geom name="potato" type="ellipsoid" size="{r}" mass="0.18" priority="1" friction="1.0 0.01 0.001"
-            rgba="{rgb} 1" condim="4"/>{pads}
-    </body>""",
-            contact="""
-    <exclude body1="potato" body2="finger_l"/>
-    <exclude body1="potato" body2="finger_r"/>""",
+        return scenario_parts(
+            "potato", rz=RADII[2], radii=vector(RADII), rgb=vector(SKIN_RGB), pad_y=PAD_Y, pad_travel=PAD_TRAVEL
         )
 
     def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
