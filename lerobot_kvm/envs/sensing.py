@@ -5,8 +5,6 @@ fingertip touch, actuator efforts, commanded-vs-achieved motion, its own last ac
 Nothing here reads an object's parameters or the scenario's variant.
 """
 
-from collections import deque
-from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -30,39 +28,9 @@ FRAME_NAMES = (  # one control step's sensed interaction context
 )
 
 
-def context_names(lags: Sequence[int] = ()) -> tuple[str, ...]:
-    """The channels of a context that joins the current frame with the frames `lags` steps before it."""
-    return (*FRAME_NAMES, *(f"{name}_lag{lag}" for lag in lags for name in FRAME_NAMES))
-
-
-def check_lags(lags: Sequence[int]) -> tuple[int, ...]:
-    """Context lags as a tuple, refusing any that is not a positive integer (steps back)."""
-    if any(not isinstance(lag, int) or isinstance(lag, bool) or lag <= 0 for lag in lags):
-        raise ValueError(f"context lags must be positive integers, got {list(lags)}")
-    return tuple(lags)
-
-
-class ContextWindow:
-    """The sensed context of each control step: its frame followed by the frames `lags` steps before it (the
-    episode's first frame while the episode is younger than a lag). A shift that shows in how the interaction
-    evolves, a load that leaves the hand over a few steps, is in no single frame; with no lags the context is the
-    frame alone."""
-
-    def __init__(self, lags: Sequence[int] = ()) -> None:
-        self.lags = check_lags(lags)
-        self.names = context_names(self.lags)
-        self._frames: deque[np.ndarray] = deque(maxlen=max(self.lags, default=0) + 1)
-
-    def reset(self) -> None:
-        self._frames.clear()
-
-    def push(self, frame: np.ndarray) -> np.ndarray:
-        """The context of the step whose frame this is (frames are pushed once per step, in order)."""
-        self._frames.append(frame)
-        if not self.lags:
-            return frame
-        last = len(self._frames) - 1
-        return np.concatenate([frame, *(self._frames[max(last - lag, 0)] for lag in self.lags)])
+def context_names() -> tuple[str, ...]:
+    """The channels of the sensed context: one control step's frame."""
+    return FRAME_NAMES
 
 
 class Sensors:
