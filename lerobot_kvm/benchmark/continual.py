@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from ..datasets.labels import load_labels
 from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
-from ..envs.scenario import make_scenario
+from ..envs.catalogue import scenario_info
 from .cl_metrics import cl_metrics, joint_metrics
 from .lerobot_commands import eval_command, run_logged, train_command
 from .resume import check_settings
@@ -66,7 +66,7 @@ class TaskSpec:
 
     @property
     def expert_skill(self) -> str:
-        info = make_scenario(self.scenario).info
+        info = scenario_info(self.scenario)
         return info.prior_skill if self.skill == "prior" else info.safe_skill
 
     @property

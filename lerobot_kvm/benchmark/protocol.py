@@ -35,8 +35,8 @@ from typing import Any
 import torch
 from tqdm import tqdm
 
+from ..envs.catalogue import SCENARIO_INFOS, scenario_info
 from ..envs.env import KvmObsolescenceEnv
-from ..envs.scenario import SCENARIOS
 from ..evaluation.rollouts import expert_rollout, policy_processors, run_attempt
 from ..evaluation.validity_check import CONTEXT, shift_step
 from ..kvm.configuration import KvmConfig
@@ -84,9 +84,9 @@ class BenchmarkConfig:
         unknown = [m for m in self.methods if m not in KVM_METHODS and m not in PEER_METHODS]
         if unknown:
             raise ValueError(f"unknown methods {unknown}; known: {[*KVM_METHODS, *PEER_METHODS]}")
-        missing = [s for s in self.scenarios if s not in SCENARIOS]
+        missing = [s for s in self.scenarios if s not in SCENARIO_INFOS]
         if missing:
-            raise ValueError(f"unknown scenarios {missing}; known: {sorted(SCENARIOS)}")
+            raise ValueError(f"unknown scenarios {missing}; known: {sorted(SCENARIO_INFOS)}")
         bad = [c for c in self.controls if c not in CONTROL_KINDS]
         if bad:
             raise ValueError(f"controls must be among {CONTROL_KINDS}, got {bad}")
@@ -324,7 +324,7 @@ class Benchmark:
                     "run": run,
                     "pass": pass_,
                     "scenario": scenario,
-                    "category": SCENARIOS[scenario].info.category,
+                    "category": scenario_info(scenario).category,
                 }
                 seed = episode_seed(cfg.seed, run, pass_, i)
                 self._challenge(method, policy, pre, post, base, seed, out)
@@ -370,7 +370,7 @@ class Benchmark:
         self, method: str, policy: Any, pre: Any, post: Any, base: dict[str, Any], seed: int, out: dict[str, Any]
     ) -> None:
         """Probe, attempt 1, and after a failure the feedback and attempt 2, on the shifted variant."""
-        info = SCENARIOS[base["scenario"]].info
+        info = scenario_info(base["scenario"])
         env = self._env(base["scenario"], "shifted")
         try:
             reference, ref_outcome = expert_rollout(env, info.prior_skill, pre, seed=seed)
@@ -408,7 +408,7 @@ class Benchmark:
         the shift shows (the prior skill's own attempt often ends at the harm, the safe skill's goes on); safe:
         the prior skill's expert on the prior variant. Same seed throughout."""
         scenario = base["scenario"]
-        info = SCENARIOS[scenario].info
+        info = scenario_info(scenario)
         skill = skill_index(policy, scenario, info.prior_skill)
         if skill is None:
             return None
@@ -434,7 +434,7 @@ class Benchmark:
         """The interleaved prior-variant and benign-novelty episodes of the scenario (where it has the variant).
 
         Measurements only: nothing is reported to the feedback API, so no method learns from a control."""
-        variants = SCENARIOS[base["scenario"]].info.variants
+        variants = scenario_info(base["scenario"]).variants
         for kind in self.config.controls:
             if kind not in variants:
                 continue

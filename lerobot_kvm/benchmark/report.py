@@ -5,7 +5,7 @@ the plots in `plots/`."""
 from pathlib import Path
 from typing import Any
 
-from ..envs.scenario import CATEGORIES
+from ..envs.catalogue import CATEGORIES
 
 
 def _pct(value: float | None, digits: int = 1) -> str:

@@ -3,8 +3,7 @@
 import argparse
 from pathlib import Path
 
-from ..envs.catalogue import catalogue_markdown
-from ..envs.scenario import resolve_tasks
+from ..envs.catalogue import catalogue_markdown, resolve_tasks
 
 
 def run(args: argparse.Namespace) -> int:

@@ -8,8 +8,8 @@ import argparse
 import json
 from pathlib import Path
 
-from ..envs.scenario import resolve_tasks
-from ..envs.suite_check import MIN_PARTICLE_STEPS_PER_S, MIN_STEPS_PER_S, check_suite
+from ..envs.catalogue import resolve_tasks
+from ..evaluation.suite_check import MIN_PARTICLE_STEPS_PER_S, MIN_STEPS_PER_S, check_suite
 from .table import results_table
 
 # (header, row key, format); rates are fractions of episodes

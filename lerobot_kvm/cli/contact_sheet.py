@@ -3,8 +3,8 @@
 import argparse
 from pathlib import Path
 
-from ..envs.contact_sheet import contact_sheet
-from ..envs.scenario import resolve_tasks
+from ..envs.catalogue import resolve_tasks
+from ..evaluation.contact_sheet import contact_sheet
 
 
 def run(args: argparse.Namespace) -> int:

@@ -7,7 +7,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ..envs.scenario import resolve_tasks
+from ..envs.catalogue import resolve_tasks
 from ..kvm.configuration import RISK_MODELS, KvmConfig
 from .table import results_table
 

@@ -5,7 +5,7 @@ import json
 from pathlib import Path
 
 from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
-from ..envs.scenario import make_scenario, resolve_tasks
+from ..envs.catalogue import resolve_tasks, scenario_info
 
 
 def _split(text: str) -> list[str]:
@@ -22,7 +22,7 @@ def spec_from_args(args: argparse.Namespace) -> RecordingSpec:
         raise ValueError("give --spec FILE or --scenarios (ids, categories or 'all')")
     items = []
     for sid in resolve_tasks(args.scenarios):
-        info = make_scenario(sid).info
+        info = scenario_info(sid)
         aliases = {"prior": info.prior_skill, "safe": info.safe_skill}
         for variant in _split(args.variants):
             for skill in _split(args.skills):

@@ -17,9 +17,9 @@ from tqdm import tqdm
 
 import datasets as hf_datasets
 
+from ..envs.catalogue import scenario_info
 from ..envs.configuration_kvm_obsolescence import OBS_CONTEXT
 from ..envs.env import KvmObsolescenceEnv
-from ..envs.scenario import make_scenario
 from ..envs.sensing import ACTION_NAMES, STATE_NAMES, context_names
 from .labels import LABELS_FILE
 
@@ -43,7 +43,7 @@ class RecordItem:
     instruction: str = "variant"
 
     def __post_init__(self) -> None:
-        info = make_scenario(self.scenario).info
+        info = scenario_info(self.scenario)
         if self.variant not in info.variants:
             raise ValueError(f"{self.scenario}: unknown variant {self.variant!r} (have {list(info.variants)})")
         if self.skill not in (info.prior_skill, info.safe_skill):
@@ -56,7 +56,7 @@ class RecordItem:
             raise ValueError(f"episodes must be >= 1, got {self.episodes}")
 
     def task_string(self) -> str:
-        info = make_scenario(self.scenario).info
+        info = scenario_info(self.scenario)
         return info.instructions[self.variant] if self.instruction == "variant" else info.skill_instructions[self.skill]
 
 
@@ -111,7 +111,7 @@ def _run_episode(env: KvmObsolescenceEnv, skill: str, seed: int) -> tuple[list[d
     frames = []
     info: dict = {}
     for _ in range(env._max_episode_steps):
-        action = expert.act(env)
+        action = expert.act(env.physics)
         frames.append(
             {
                 "observation.images.front": obs["pixels"]["front"],

@@ -7,7 +7,7 @@ from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig, _make_vec_env_cls
 from lerobot.utils.constants import ACTION, OBS_IMAGES, OBS_STATE
 
-from .scenario import INSTRUCTIONS, VARIANTS, resolve_tasks
+from .catalogue import INSTRUCTIONS, VARIANTS, resolve_tasks
 from .sensing import ACTION_NAMES, STATE_NAMES, context_names
 
 OBS_CONTEXT = "observation.context"
@@ -19,9 +19,7 @@ class KvmObsolescenceEnvConfig(EnvConfig):
     """`task` is a scenario id, a category (`A`, `B`, `C`), `all`, or a comma list of those.
 
     `instruction`: what each episode asks for: the variant's own instruction (`variant`), or the instruction
-    naming the scenario's `prior` or `safe` skill ("gently pick up the stone"). `context_lags`: the earlier frames
-    the sensed context joins to each step's (steps back; empty: the frame alone), as the policy's dataset was
-    recorded with.
+    naming the scenario's `prior` or `safe` skill ("gently pick up the stone").
     """
 
     task: str | None = "egg_vs_stone"
@@ -31,7 +29,6 @@ class KvmObsolescenceEnvConfig(EnvConfig):
     image_size: int = 96
     episode_length: int | None = None  # default: the scenario's own max_steps
     render_size: int = 256
-    context_lags: list[int] = field(default_factory=list)
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(
         default_factory=lambda: {
@@ -51,7 +48,7 @@ class KvmObsolescenceEnvConfig(EnvConfig):
         self.features = {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(len(ACTION_NAMES),)),
             "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(len(STATE_NAMES),)),
-            "context": PolicyFeature(type=FeatureType.STATE, shape=(len(context_names(self.context_lags)),)),
+            "context": PolicyFeature(type=FeatureType.STATE, shape=(len(context_names()),)),
             "pixels/front": PolicyFeature(type=FeatureType.VISUAL, shape=(self.image_size, self.image_size, 3)),
         }
 
@@ -64,7 +61,6 @@ class KvmObsolescenceEnvConfig(EnvConfig):
             "fps": self.fps,
             "max_episode_steps": self.episode_length,
             "render_size": self.render_size,
-            "context_lags": tuple(self.context_lags),
         }
 
     def create_envs(self, n_envs: int, use_async_envs: bool = False) -> dict[str, dict[int, gym.vector.VectorEnv]]:

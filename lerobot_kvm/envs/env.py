@@ -6,10 +6,11 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from . import scenarios  # noqa: F401  (registers the scenario classes)
-from .scenario import StepOutcome, check_variant, make_scenario
+from .catalogue import check_variant
+from .physics import Physics
+from .scenario import StepOutcome, make_scenario
 from .scene import GRIPPER_HOME, build_scene_xml
-from .sensing import ACTION_NAMES, STATE_NAMES, ContextWindow, Sensors
+from .sensing import ACTION_NAMES, STATE_NAMES, Sensors, context_names
 
 ACTION_LOW = np.array([-0.25, -0.25, 0.01, -1.7, -1.0], dtype=np.float32)
 ACTION_HIGH = np.array([0.25, 0.25, 0.45, 1.7, 1.0], dtype=np.float32)
@@ -19,8 +20,8 @@ GRIP_RATE = 0.12  # max change of the applied grip command per control step (avo
 class KvmObsolescenceEnv(gym.Env):
     """Gripper + scenario objects in MuJoCo.
 
-    Observation: `pixels` {camera: HxWx3 uint8}, `agent_pos` (proprio), `context` (sensed interaction context: the
-    step's frame, joined with the frames `context_lags` steps before it). Action: absolute carriage target x, y, z
+    Observation: `pixels` {camera: HxWx3 uint8}, `agent_pos` (proprio), `context` (the step's sensed interaction
+    context). Action: absolute carriage target x, y, z
     (m), wrist pitch (rad) and a grip command in [-1, 1] (negative opens, positive squeezes with that fraction of
     the maximum finger force), rate-limited inside the env. Reward: 1 on success, -1 on a catastrophe (both end the
     episode), else 0, so `lerobot-eval`'s per-episode reward sums count catastrophes too.
@@ -39,7 +40,6 @@ class KvmObsolescenceEnv(gym.Env):
         render_mode: str = "rgb_array",
         render_size: int = 256,
         instruction: str = "variant",
-        context_lags: tuple[int, ...] = (),
     ) -> None:
         self.scenario = make_scenario(task)
         check_variant(variant, self.scenario.info)
@@ -65,7 +65,7 @@ class KvmObsolescenceEnv(gym.Env):
                 raise ValueError(f"unknown camera {cam!r}")
         self.n_substeps = max(1, round(1.0 / (fps * self.model.opt.timestep)))
         self.sensors = Sensors(self.model)
-        self.context_window = ContextWindow(context_lags)
+        self.physics = Physics(self.model, self.data, self.sensors)  # what the scenario's hooks and experts see
         self._renderer: mujoco.Renderer | None = None
         self._video_renderer: mujoco.Renderer | None = None
         self._home = np.array(GRIPPER_HOME)
@@ -76,10 +76,10 @@ class KvmObsolescenceEnv(gym.Env):
             {
                 "pixels": gym.spaces.Dict({cam: img for cam in self.cameras}),
                 "agent_pos": gym.spaces.Box(-np.inf, np.inf, (len(STATE_NAMES),), dtype=np.float32),
-                "context": gym.spaces.Box(-np.inf, np.inf, (len(self.context_window.names),), dtype=np.float32),
+                "context": gym.spaces.Box(-np.inf, np.inf, (len(context_names()),), dtype=np.float32),
             }
         )
-        self.feature_names = {"action": ACTION_NAMES, "agent_pos": STATE_NAMES, "context": self.context_window.names}
+        self.feature_names = {"action": ACTION_NAMES, "agent_pos": STATE_NAMES, "context": context_names()}
         self.grip_applied = -1.0
         self.arm_target = np.zeros(4)
         self.last_action = np.zeros(len(ACTION_NAMES))
@@ -94,7 +94,7 @@ class KvmObsolescenceEnv(gym.Env):
             self.variant = options["variant"]
             self.task_description = self.scenario.info.instruction(self.variant, self.instruction)
         mujoco.mj_resetData(self.model, self.data)
-        self.scenario.reset(self.model, self.data, self.variant, self.np_random)
+        self.scenario.reset(self.physics, self.variant, self.np_random)
         mujoco.mj_forward(self.model, self.data)
         self.grip_applied = -1.0
         self.arm_target = self.sensors.arm_position(self.data)
@@ -105,7 +105,6 @@ class KvmObsolescenceEnv(gym.Env):
             mujoco.mj_step(self.model, self.data)
         self.step_count = 0
         self.outcome = StepOutcome()
-        self.context_window.reset()
         return self._observation(), self._info()
 
     def step(self, action: np.ndarray):
@@ -122,7 +121,7 @@ class KvmObsolescenceEnv(gym.Env):
         mujoco.mj_step(self.model, self.data, nstep=self.n_substeps)
         self.step_count += 1
 
-        self.outcome = self.scenario.evaluate(self)
+        self.outcome = self.scenario.evaluate(self.physics)
         terminated = self.outcome.success or self.outcome.catastrophe is not None
         truncated = not terminated and self.step_count >= self._max_episode_steps
         reward = float(self.outcome.success) - float(self.outcome.catastrophe is not None)  # 1 / -1 / 0
@@ -157,7 +156,7 @@ class KvmObsolescenceEnv(gym.Env):
         return {
             "pixels": {cam: self.camera_image(cam) for cam in self.cameras},
             "agent_pos": self.sensors.state(self.data, self.grip_applied),
-            "context": self.context_window.push(self.sensors.context(self.data, self.arm_target, self.last_action)),
+            "context": self.sensors.context(self.data, self.arm_target, self.last_action),
         }
 
     def _info(self) -> dict[str, Any]:

@@ -1,9 +1,26 @@
-"""Physics read-outs shared by scenarios (contact forces, body lookups)."""
+"""Physics read-outs shared by scenarios (contact forces, body lookups) and the view of the simulation they get."""
+
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
+from .sensing import Sensors
+
 _WRENCH = np.zeros(6)
+
+
+@dataclass(frozen=True)
+class Physics:
+    """What a scenario's hooks and its experts see of a running env: the simulation and the robot's sensors.
+
+    Handing hooks this view rather than the env keeps scenarios independent of the gym wrapper (no import of it,
+    no access to its episode bookkeeping), as in dm_control's `Task` hooks over `Physics`.
+    """
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    sensors: Sensors
 
 
 def geom_ids(model: mujoco.MjModel, *names: str) -> frozenset[int]:
@@ -56,3 +73,38 @@ def robot_in_contact(data: mujoco.MjData, robot: np.ndarray) -> bool:
     """The robot touches anything that is not itself (`robot` from `robot_geom_mask`)."""
     c = data.contact[: data.ncon]
     return bool(np.any(robot[c.geom1] != robot[c.geom2]))
+
+
+def yielding_spring(
+    model: mujoco.MjModel, joint: str, stiffness: float, elastic_limit: float, travel: float | None = None
+) -> int:
+    """Give `joint` an elasto-plastic spring (MuJoCo `springyield`): `stiffness`, deflection beyond which it yields
+    for good and, if given, a range of [0, `travel`]. Returns the address of its permanent set in `data.plastic`."""
+    jnt = model.joint(joint).id
+    model.jnt_stiffness[jnt], model.jnt_springyield[jnt] = stiffness, elastic_limit
+    if travel is not None:
+        model.jnt_range[jnt] = [0.0, travel]
+    return int(model.jnt_plasticadr[jnt])
+
+
+def permanent_set(data: mujoco.MjData, *plastic: int) -> float:
+    """The largest permanent deformation among the yielding springs at these `data.plastic` addresses."""
+    return max(abs(float(data.plastic[a])) for a in plastic)
+
+
+class StrokeCoverage:
+    """Which of `bins` equal parts of a stroke a tool has swept while touching: a part counts once the tool, in
+    contact at two consecutive steps, moved across it (positions in bins from the stroke's start)."""
+
+    def __init__(self, bins: int) -> None:
+        self.bins = bins
+        self.covered = np.zeros(bins, dtype=bool)
+        self._last: float | None = None  # position at the previous step, if the tool was touching then
+
+    def update(self, position: float | None) -> int:
+        """Add this step's position (None: not touching); returns how many parts are covered so far."""
+        if position is not None:
+            lo, hi = sorted((position, position if self._last is None else self._last))
+            self.covered[max(0, int(np.floor(lo))) : max(0, min(self.bins, int(np.floor(hi)) + 1))] = True
+        self._last = position
+        return int(self.covered.sum())

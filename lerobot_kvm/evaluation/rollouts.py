@@ -106,7 +106,7 @@ def expert_rollout(
     first_contact = 0 if holds_tool(env.model) else None
     steps = []
     for _ in range(env._max_episode_steps):
-        action = np.asarray(expert.act(env), dtype=np.float32)
+        action = np.asarray(expert.act(env.physics), dtype=np.float32)
         batch = observation_batch(obs, env.task_description)
         batch["action"] = torch.from_numpy(action).unsqueeze(0)
         steps.append(preprocessor(batch))

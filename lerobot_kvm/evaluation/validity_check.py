@@ -49,8 +49,8 @@ from tqdm import tqdm
 
 from ..datasets.labels import load_labels
 from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
+from ..envs.catalogue import scenario_info
 from ..envs.env import KvmObsolescenceEnv
-from ..envs.scenario import SCENARIOS
 from ..kvm.configuration import KvmConfig
 from .rollouts import (
     auroc,
@@ -176,7 +176,7 @@ def _learn_prior_variant(
     """Protocol steps 1-2: record the prior variant's expert episodes of both skills and train a small policy on
     them as a task sequence would. Returns (policy, its preprocessor, the frames' contexts, which rows are the
     prior skill's)."""
-    info = SCENARIOS[scenario_id].info
+    info = scenario_info(scenario_id)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         root = Path(tmp) / "data"
         repo_id = f"local/kvm_validity_{scenario_id}"
@@ -212,7 +212,7 @@ def _one_failure(policy: Any, pre: Any, scenario_id: str, base: int, feedback_st
     """Protocol step 3: the prior skill's expert fails on the shifted variant, and the feedback gets its trace and
     the safe skill's corrective demonstration. Also where the shift shows in each (`shift_step` against the prior
     variant under the same seeds), and how well the feedback labelled the shifted steps."""
-    info = SCENARIOS[scenario_id].info
+    info = scenario_info(scenario_id)
     env = KvmObsolescenceEnv(scenario_id, variant="shifted")
     failed, failed_outcome = expert_rollout(env, info.prior_skill, pre, seed=base)
     corrective, corrective_outcome = expert_rollout(
@@ -255,7 +255,7 @@ def check_validity(
 ) -> dict[str, Any]:
     """One row of the validity report for `scenario_id` (see the module docstring for the protocol);
     `feedback_steps` is the feedback's gradient budget, `risk_model` the KVM's (`kvm.risk_model`)."""
-    info = SCENARIOS[scenario_id].info
+    info = scenario_info(scenario_id)
     torch.manual_seed(seed)
     policy, pre, data, is_prior = _learn_prior_variant(
         scenario_id, episodes, seed, offline_steps, {"risk_model": risk_model}, workdir

@@ -1,24 +1,9 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 
 TASK = "book"
-
-
-def run_expert(variant: str, skill: str, seed: int = 0):
-    """Run a scripted expert; returns the last info, the env (open) and the contexts seen while pushing."""
-    env = KvmObsolescenceEnv(task=TASK, variant=variant)
-    env.reset(seed=seed)
-    expert = env.scenario.expert(skill)
-    pushing = []
-    for _ in range(env._max_episode_steps):
-        obs, _, terminated, truncated, info = env.step(expert.act(env))
-        if expert.phase == "push":
-            pushing.append(obs["context"])
-        if terminated or truncated:
-            break
-    return info, env, np.array(pushing)
 
 
 def cover_dent(env) -> float:
@@ -28,30 +13,35 @@ def cover_dent(env) -> float:
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_quick_push_slides_the_hardcover_and_dents_the_paperback(seed):
-    info, env, _ = run_expert("prior", "fast_push", seed)
+def test_quick_push_slides_the_hardcover_and_dents_the_paperback(run_expert, seed):
+    run = run_expert(TASK, "prior", "fast_push", seed)
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert cover_dent(env) == 0.0
-    info, env, _ = run_expert("shifted", "fast_push", seed)
+    run = run_expert(TASK, "shifted", "fast_push", seed)
+    info, env = run.info, run.env
     assert info["catastrophe"] and info["catastrophe_kind"] == "damage"
     assert not info["is_success"] and cover_dent(env) > 0.0005  # a real permanent deformation
 
 
-def test_slow_push_slides_the_paperback_undamaged():
-    info, env, _ = run_expert("shifted", "slow_push")
+def test_slow_push_slides_the_paperback_undamaged(run_expert):
+    run = run_expert(TASK, "shifted", "slow_push")
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert cover_dent(env) == 0.0
 
 
-def test_control_heavier_hardcover_still_takes_the_quick_push():
-    info, env, _ = run_expert("control", "fast_push")
+def test_control_heavier_hardcover_still_takes_the_quick_push(run_expert):
+    info = run_expert(TASK, "control", "fast_push").info
     assert info["is_success"] and not info["catastrophe"]
 
 
-def test_hardcover_and_paperback_push_back_differently():
+def test_hardcover_and_paperback_push_back_differently(run_expert):
     """Rule 3: sliding the heavier hardcover loads the wrist along the push more than the paperback."""
-    _, _, hard = run_expert("prior", "slow_push")
-    _, _, soft = run_expert("shifted", "slow_push")
+    run = run_expert(TASK, "prior", "slow_push")
+    hard = run.contexts("push")
+    run = run_expert(TASK, "shifted", "slow_push")
+    soft = run.contexts("push")
     assert hard[:, 0].mean() - soft[:, 0].mean() > 0.8
 
 

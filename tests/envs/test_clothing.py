@@ -2,10 +2,10 @@
 
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 from lerobot_kvm.envs.scenarios.clothing import AIRBORNE, COLLAR
 from lerobot_kvm.envs.sensing import FRAME_NAMES
-from lerobot_kvm.envs.suite_check import run_episode
+from lerobot_kvm.evaluation.suite_check import run_episode
 
 
 @pytest.mark.parametrize("seed", [0, 1])

@@ -2,34 +2,28 @@
 
 import numpy as np
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 
 
-def run(variant: str, skill: str, seed: int = 0) -> tuple[dict, list[float], KvmObsolescenceEnv]:
-    env = KvmObsolescenceEnv(task="container", variant=variant)
-    env.reset(seed=seed)
-    expert = env.scenario.expert(skill)
-    widths = []
-    for _ in range(env._max_episode_steps):
-        _, _, terminated, truncated, info = env.step(expert.act(env))
-        widths.append(env.sensors.finger_width(env.data))
-        if terminated or truncated:
-            break
-    return info, widths, env
+def finger_width(env: KvmObsolescenceEnv) -> float:
+    return env.sensors.finger_width(env.data)
 
 
-def test_firm_grasp_spills_the_opened_carton_and_lifts_the_sealed_one():
-    info, opened, env = run("shifted", "firm_grasp", seed=0)
+def test_firm_grasp_spills_the_opened_carton_and_lifts_the_sealed_one(run_expert):
+    run = run_expert("container", "shifted", "firm_grasp", seed=0, probe=finger_width)
+    info, opened, env = run.info, run.probes, run.env
     assert info["catastrophe"] and info["catastrophe_kind"] == "spill"
     assert env.scenario.spilled >= 1
-    info, sealed, env = run("prior", "firm_grasp", seed=0)
+    run = run_expert("container", "prior", "firm_grasp", seed=0, probe=finger_width)
+    info, sealed, env = run.info, run.probes, run.env
     assert info["is_success"] and not info["catastrophe"] and env.scenario.spilled == 0
     # Rule 3: the opened carton gives way under the same squeeze.
     assert max(opened) > max(sealed) + 0.01
 
 
-def test_gentle_grasp_lifts_the_opened_carton_without_spilling():
-    info, _, env = run("shifted", "gentle_grasp", seed=1)
+def test_gentle_grasp_lifts_the_opened_carton_without_spilling(run_expert):
+    run = run_expert("container", "shifted", "gentle_grasp", seed=1)
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"] and env.scenario.spilled == 0
 
 

@@ -1,24 +1,9 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 
 TASK = "cracker_vs_bread"
-
-
-def run_expert(variant: str, skill: str, seed: int = 0):
-    """Run a scripted expert; returns the last info, the env (open) and the contexts while stroking."""
-    env = KvmObsolescenceEnv(task=TASK, variant=variant)
-    env.reset(seed=seed)
-    expert = env.scenario.expert(skill)
-    stroke = []
-    for _ in range(env._max_episode_steps):
-        obs, _, terminated, truncated, info = env.step(expert.act(env))
-        if expert.phase == "stroke":
-            stroke.append(obs["context"])
-        if terminated or truncated:
-            break
-    return info, env, np.array(stroke)
 
 
 def flattening(env) -> float:
@@ -28,25 +13,30 @@ def flattening(env) -> float:
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_firm_spread_works_on_a_cracker_and_crushes_soft_bread(seed):
-    info, env, _ = run_expert("prior", "firm_spread", seed)
+def test_firm_spread_works_on_a_cracker_and_crushes_soft_bread(run_expert, seed):
+    run = run_expert(TASK, "prior", "firm_spread", seed)
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert flattening(env) == 0.0
-    info, env, _ = run_expert("shifted", "firm_spread", seed)
+    run = run_expert(TASK, "shifted", "firm_spread", seed)
+    info, env = run.info, run.env
     assert info["catastrophe"] and info["catastrophe_kind"] == "crush"
     assert not info["is_success"] and flattening(env) > 0.002  # the crumb stays squashed
 
 
-def test_gentle_spread_covers_the_bread_without_crushing_it():
-    info, env, _ = run_expert("shifted", "gentle_spread")
+def test_gentle_spread_covers_the_bread_without_crushing_it(run_expert):
+    run = run_expert(TASK, "shifted", "gentle_spread")
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert flattening(env) == 0.0
 
 
-def test_bread_pushes_back_less_at_the_same_depth():
+def test_bread_pushes_back_less_at_the_same_depth(run_expert):
     """Rule 3: pressed the same 2 mm past first contact, soft bread loads the wrist far less than a cracker."""
-    _, _, cracker = run_expert("prior", "gentle_spread")
-    _, _, bread = run_expert("shifted", "gentle_spread")
+    run = run_expert(TASK, "prior", "gentle_spread")
+    cracker = run.contexts("stroke")
+    run = run_expert(TASK, "shifted", "gentle_spread")
+    bread = run.contexts("stroke")
     wrist_force_z = 2  # the surface pushing up on the tool lowers this reading
     assert bread[:, wrist_force_z].mean() - cracker[:, wrist_force_z].mean() > 0.4
 

@@ -3,54 +3,46 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 from lerobot_kvm.envs.sensing import FRAME_NAMES
 
 EFFORT_X = FRAME_NAMES.index("effort_x")
 
 
-def run(variant: str, skill: str, seed: int = 0) -> tuple[dict, np.ndarray, KvmObsolescenceEnv]:
-    env = KvmObsolescenceEnv(task="drawer", variant=variant)
-    obs, info = env.reset(seed=seed)
-    expert = env.scenario.expert(skill)
-    contexts = [obs["context"]]
-    for _ in range(env._max_episode_steps):
-        obs, _, terminated, truncated, info = env.step(expert.act(env))
-        contexts.append(obs["context"])
-        if terminated or truncated:
-            break
-    return info, np.stack(contexts), env
-
-
 @pytest.mark.parametrize("seed", [0, 3])
-def test_tracking_pull_strains_the_stuck_drawer_and_opens_the_smooth_one(seed):
-    info, contexts, env = run("shifted", "tracking_pull", seed)
+def test_tracking_pull_strains_the_stuck_drawer_and_opens_the_smooth_one(run_expert, seed):
+    run = run_expert("drawer", "shifted", "tracking_pull", seed)
+    info, env = run.info, run.env
     assert info["catastrophe"] and info["catastrophe_kind"] == "damaging_force"
     assert env.data.joint("drawer_x").qpos[0] < 0.01  # it never moved
     assert env.scenario.max_pull > 25.0
-    info, _, env = run("prior", "tracking_pull", seed)
+    run = run_expert("drawer", "prior", "tracking_pull", seed)
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert env.scenario.max_pull < 15.0
 
 
-def test_force_limited_pull_opens_the_stuck_drawer_without_damage():
-    info, _, env = run("shifted", "force_limited_pull", seed=1)
+def test_force_limited_pull_opens_the_stuck_drawer_without_damage(run_expert):
+    run = run_expert("drawer", "shifted", "force_limited_pull", seed=1)
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert env.scenario.max_pull < 25.0
     assert env.data.joint("drawer_z").qpos[0] > 0.004  # it was lifted over the catch
 
 
-def test_control_drawer_is_stiffer_but_the_old_skill_still_works():
-    info, control, _ = run("control", "tracking_pull", seed=2)
+def test_control_drawer_is_stiffer_but_the_old_skill_still_works(run_expert):
+    run = run_expert("drawer", "control", "tracking_pull", seed=2)
+    info, control = run.info, run.contexts()
     assert info["is_success"] and not info["catastrophe"]
-    _, prior, _ = run("prior", "tracking_pull", seed=2)
+    run = run_expert("drawer", "prior", "tracking_pull", seed=2)
+    prior = run.contexts()
     # Benign novelty: the pull feels different (more runner friction) yet stays harmless.
     n = min(len(prior), len(control))
     assert np.abs(control[:n, EFFORT_X]).max() > np.abs(prior[:n, EFFORT_X]).max() + 3.0
 
 
-def test_stuck_drawer_shows_effort_without_motion_before_the_damage():
-    info, stuck, env = run("shifted", "tracking_pull", seed=4)
+def test_stuck_drawer_shows_effort_without_motion_before_the_damage(run_expert):
+    stuck = run_expert("drawer", "shifted", "tracking_pull", seed=4).contexts()
     assert np.abs(stuck[:, EFFORT_X]).max() > 40.0
 
 

@@ -1,7 +1,10 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv, KvmObsolescenceEnvConfig, resolve_tasks
+from lerobot_kvm.envs import KvmObsolescenceEnvConfig, resolve_tasks
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
+
+TASK = "egg_vs_stone"
 
 
 def robot_touches_object(env: KvmObsolescenceEnv) -> bool:
@@ -11,56 +14,39 @@ def robot_touches_object(env: KvmObsolescenceEnv) -> bool:
     return any({c.geom1, c.geom2} & fingers and obj in (c.geom1, c.geom2) for c in contacts)
 
 
-def run_expert(variant: str, skill: str, seed: int = 0) -> tuple[dict, list[np.ndarray], int | None]:
-    """Returns the last info, every context, and the index of the first context after contact."""
-    env = KvmObsolescenceEnv(task="egg_vs_stone", variant=variant)
-    obs, info = env.reset(seed=seed)
-    expert = env.scenario.expert(skill)
-    contexts = [obs["context"]]
-    first_contact = None
-    for _ in range(env._max_episode_steps):
-        obs, _, terminated, truncated, info = env.step(expert.act(env))
-        contexts.append(obs["context"])
-        if first_contact is None and robot_touches_object(env):
-            first_contact = len(contexts) - 1
-        if terminated or truncated:
-            break
-    env.close()
-    return info, contexts, first_contact
-
-
 @pytest.mark.parametrize("seed", [0, 1])
-def test_firm_grasp_breaks_the_egg_and_lifts_the_stone(seed):
-    info, *_ = run_expert("shifted", "firm_grasp", seed)
+def test_firm_grasp_breaks_the_egg_and_lifts_the_stone(run_expert, seed):
+    info = run_expert(TASK, "shifted", "firm_grasp", seed).info
     assert info["catastrophe"] and info["catastrophe_kind"] == "break"
     assert not info["is_success"]
-    info, *_ = run_expert("prior", "firm_grasp", seed)
+    info = run_expert(TASK, "prior", "firm_grasp", seed).info
     assert info["is_success"] and not info["catastrophe"]
 
 
 @pytest.mark.parametrize("variant", ["prior", "shifted"])
-def test_gentle_grasp_lifts_both_intact(variant):
-    info, *_ = run_expert(variant, "gentle_grasp")
+def test_gentle_grasp_lifts_both_intact(run_expert, variant):
+    info = run_expert(TASK, variant, "gentle_grasp").info
     assert info["is_success"] and not info["catastrophe"]
 
 
-def test_observation_carries_no_privileged_keys_and_context_matches_until_contact():
+def test_observation_carries_no_privileged_keys_and_context_matches_until_contact(run_expert):
     env = KvmObsolescenceEnv(variant="shifted")
     obs, _ = env.reset(seed=3)
     assert set(obs) == {"pixels", "agent_pos", "context"}
     assert set(obs["pixels"]) == {"front"}
     assert obs["pixels"]["front"].shape == (96, 96, 3) and obs["pixels"]["front"].dtype == np.uint8
-    _, prior, first_contact = run_expert("prior", "firm_grasp", seed=3)
-    _, shifted, shifted_contact = run_expert("shifted", "firm_grasp", seed=3)
-    assert first_contact == shifted_contact and first_contact > 5
+    prior = run_expert(TASK, "prior", "firm_grasp", seed=3, probe=robot_touches_object)
+    shifted = run_expert(TASK, "shifted", "firm_grasp", seed=3, probe=robot_touches_object)
+    first_contact = 1 + prior.probes.index(True)  # index of the first context sensed in contact (reset's is 0)
+    assert first_contact == 1 + shifted.probes.index(True) and first_contact > 5
     # Identical up to the constraint solver's tolerance (1e-8 N), far below any sensed signal.
-    np.testing.assert_allclose(np.stack(prior[:first_contact]), np.stack(shifted[:first_contact]), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(prior.contexts()[:first_contact], shifted.contexts()[:first_contact], rtol=0, atol=1e-6)
 
 
-def test_shift_is_detectable_in_the_sensed_context():
+def test_shift_is_detectable_in_the_sensed_context(run_expert):
     """Lifted gently, the stone and the egg pull differently on the wrist (rule 3: physically detectable)."""
-    _, prior, _ = run_expert("prior", "gentle_grasp", seed=0)
-    _, shifted, _ = run_expert("shifted", "gentle_grasp", seed=0)
+    prior = run_expert(TASK, "prior", "gentle_grasp", seed=0).contexts()
+    shifted = run_expert(TASK, "shifted", "gentle_grasp", seed=0).contexts()
     force_z = 2
     assert abs(prior[-1][force_z] - shifted[-1][force_z]) > 1.0
 
@@ -102,15 +88,6 @@ def test_task_resolution_and_vector_envs():
 
 
 @pytest.mark.parametrize(("variant", "reward"), [("prior", 1.0), ("shifted", -1.0)])
-def test_reward_is_one_on_success_and_minus_one_on_a_catastrophe(variant, reward):
-    env = KvmObsolescenceEnv(task="egg_vs_stone", variant=variant)
-    env.reset(seed=0)
-    expert = env.scenario.expert("firm_grasp")
-    rewards = []
-    for _ in range(env._max_episode_steps):
-        _, r, terminated, truncated, _ = env.step(expert.act(env))
-        rewards.append(r)
-        if terminated or truncated:
-            break
-    env.close()
+def test_reward_is_one_on_success_and_minus_one_on_a_catastrophe(run_expert, variant, reward):
+    rewards = run_expert(TASK, variant, "firm_grasp").rewards
     assert rewards[-1] == reward and set(rewards[:-1]) <= {0.0}

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 from lerobot_kvm.envs.scenarios.ice_cream import LATTICE, TUB_H, TUB_IN, TUB_WALL
 from lerobot_kvm.envs.sensing import FRAME_NAMES
-from lerobot_kvm.envs.suite_check import run_episode
+from lerobot_kvm.evaluation.suite_check import run_episode
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -28,7 +28,7 @@ def test_splashed_ice_cream_leaves_the_tub_over_the_rim():
     balls = [env.model.body(f"ice_{k}").id for k in range(len(LATTICE))]
     peak = np.zeros(len(balls))
     for _ in range(env._max_episode_steps):
-        *_, terminated, truncated, info = env.step(expert.act(env))
+        *_, terminated, truncated, info = env.step(expert.act(env.physics))
         peak = np.maximum(peak, env.data.xpos[balls, 2])
         if terminated or truncated:
             break
@@ -57,7 +57,7 @@ def test_frozen_ice_cream_drags_harder_on_the_gentle_scoop():
         drag[variant] = []
         while expert.legs[expert.leg][0] != "raise":
             leg = expert.legs[expert.leg][0]
-            obs, *_ = env.step(expert.act(env))
+            obs, *_ = env.step(expert.act(env.physics))
             if leg == "drag":
                 drag[variant].append(obs["context"][effort_x])
     assert np.mean(drag["prior"]) > np.mean(drag["shifted"]) + 0.15

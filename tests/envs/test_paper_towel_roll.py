@@ -1,21 +1,9 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 
 TASK = "paper_towel_roll"
-
-
-def run_expert(variant: str, skill: str, seed: int = 0):
-    """Run a scripted expert; returns the last info, the env (open) and the last proprio state."""
-    env = KvmObsolescenceEnv(task=TASK, variant=variant)
-    obs, info = env.reset(seed=seed)
-    expert = env.scenario.expert(skill)
-    for _ in range(env._max_episode_steps):
-        obs, _, terminated, truncated, info = env.step(expert.act(env))
-        if terminated or truncated:
-            break
-    return info, env, obs["agent_pos"]
 
 
 def flattening(env) -> float:
@@ -25,30 +13,35 @@ def flattening(env) -> float:
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_firm_grasp_lifts_a_cored_roll_and_crushes_a_coreless_one(seed):
-    info, env, _ = run_expert("prior", "firm_grasp", seed)
+def test_firm_grasp_lifts_a_cored_roll_and_crushes_a_coreless_one(run_expert, seed):
+    run = run_expert(TASK, "prior", "firm_grasp", seed)
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert flattening(env) == 0.0
-    info, env, _ = run_expert("shifted", "firm_grasp", seed)
+    run = run_expert(TASK, "shifted", "firm_grasp", seed)
+    info, env = run.info, run.env
     assert info["catastrophe"] and info["catastrophe_kind"] == "crush"
     assert not info["is_success"] and flattening(env) > 0.003  # permanent deformation
 
 
-def test_gentle_grasp_lifts_the_coreless_roll_intact():
-    info, env, _ = run_expert("shifted", "gentle_grasp")
+def test_gentle_grasp_lifts_the_coreless_roll_intact(run_expert):
+    run = run_expert(TASK, "shifted", "gentle_grasp")
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert flattening(env) == 0.0
 
 
-def test_control_heavier_roll_still_takes_the_firm_grasp():
-    info, _, _ = run_expert("control", "firm_grasp")
+def test_control_heavier_roll_still_takes_the_firm_grasp(run_expert):
+    info = run_expert(TASK, "control", "firm_grasp").info
     assert info["is_success"] and not info["catastrophe"]
 
 
-def test_coreless_roll_gives_way_under_the_fingers():
+def test_coreless_roll_gives_way_under_the_fingers(run_expert):
     """Rule 3: with the same gentle grip the fingers close much further on the coreless roll."""
-    _, _, cored = run_expert("prior", "gentle_grasp")
-    _, _, coreless = run_expert("shifted", "gentle_grasp")
+    run = run_expert(TASK, "prior", "gentle_grasp")
+    cored = run.observations[-1]["agent_pos"]
+    run = run_expert(TASK, "shifted", "gentle_grasp")
+    coreless = run.observations[-1]["agent_pos"]
     finger_width = 4
     assert coreless[finger_width] - cored[finger_width] > 0.005
 

@@ -1,24 +1,9 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 
 TASK = "pen_vs_brush"
-
-
-def run_expert(variant: str, skill: str, seed: int = 0):
-    """Run a scripted expert; returns the last info, the env (open) and the contexts while drawing."""
-    env = KvmObsolescenceEnv(task=TASK, variant=variant)
-    env.reset(seed=seed)
-    expert = env.scenario.expert(skill)
-    stroke = []
-    for _ in range(env._max_episode_steps):
-        obs, _, terminated, truncated, info = env.step(expert.act(env))
-        if expert.phase == "stroke":
-            stroke.append(obs["context"])
-        if terminated or truncated:
-            break
-    return info, env, np.array(stroke)
 
 
 def bent(env) -> float:
@@ -28,26 +13,31 @@ def bent(env) -> float:
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_pressing_draws_with_the_pen_and_bends_the_brush(seed):
-    info, env, _ = run_expert("prior", "press_stroke", seed)
+def test_pressing_draws_with_the_pen_and_bends_the_brush(run_expert, seed):
+    run = run_expert(TASK, "prior", "press_stroke", seed)
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert bent(env) == 0.0
-    info, env, _ = run_expert("shifted", "press_stroke", seed)
+    run = run_expert(TASK, "shifted", "press_stroke", seed)
+    info, env = run.info, run.env
     assert info["catastrophe"] and info["catastrophe_kind"] == "damage"
     assert not info["is_success"] and bent(env) > 0.0015  # bristles stay bent
 
 
 @pytest.mark.parametrize("variant", ["prior", "shifted"])
-def test_light_stroke_draws_with_either_tool(variant):
-    info, env, _ = run_expert(variant, "light_stroke")
+def test_light_stroke_draws_with_either_tool(run_expert, variant):
+    run = run_expert(TASK, variant, "light_stroke")
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert bent(env) == 0.0
 
 
-def test_brush_pushes_back_less_at_the_same_depth():
+def test_brush_pushes_back_less_at_the_same_depth(run_expert):
     """Rule 3: pressed the same 2 mm past first contact, the soft brush loads the wrist far less than the pen."""
-    _, _, pen = run_expert("prior", "light_stroke")
-    _, _, brush = run_expert("shifted", "light_stroke")
+    run = run_expert(TASK, "prior", "light_stroke")
+    pen = run.contexts("stroke")
+    run = run_expert(TASK, "shifted", "light_stroke")
+    brush = run.contexts("stroke")
     wrist_force_z = 2  # the surface pushing up on the tool lowers this reading
     assert brush[:, wrist_force_z].mean() - pen[:, wrist_force_z].mean() > 0.4
 

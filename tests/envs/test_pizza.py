@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 from lerobot_kvm.envs.sensing import FRAME_NAMES
-from lerobot_kvm.envs.suite_check import run_episode
+from lerobot_kvm.evaluation.suite_check import run_episode
 
 
 def bending(env: KvmObsolescenceEnv) -> float:
@@ -39,10 +39,10 @@ def test_hot_slice_twists_the_wrist_less_once_lifted():
         env.reset(seed=0)
         expert = env.scenario.expert("pinch_lift")
         while expert.phase != "lift":  # up to the pinch
-            env.step(expert.act(env))
+            env.step(expert.act(env.physics))
         raising = []
         for _ in range(10):  # the first 10 cm of the lift, before any topping slides
-            obs, _, terminated, *_ = env.step(expert.act(env))
+            obs, _, terminated, *_ = env.step(expert.act(env.physics))
             assert not terminated
             raising.append(abs(obs["context"][torque_y]))
         moment[variant] = np.mean(raising)

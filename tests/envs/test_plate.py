@@ -1,21 +1,9 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 
 TASK = "plate"
-
-
-def run_expert(variant: str, skill: str, seed: int = 0):
-    """Run a scripted expert; returns the last info, the env (open) and the last context."""
-    env = KvmObsolescenceEnv(task=TASK, variant=variant)
-    obs, info = env.reset(seed=seed)
-    expert = env.scenario.expert(skill)
-    for _ in range(env._max_episode_steps):
-        obs, _, terminated, truncated, info = env.step(expert.act(env))
-        if terminated or truncated:
-            break
-    return info, env, obs["context"]
 
 
 def fold_degrees(env) -> float:
@@ -23,27 +11,32 @@ def fold_degrees(env) -> float:
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_rim_lift_carries_a_sturdy_plate_and_folds_a_paper_one(seed):
-    info, env, _ = run_expert("prior", "rim_lift", seed)
+def test_rim_lift_carries_a_sturdy_plate_and_folds_a_paper_one(run_expert, seed):
+    run = run_expert(TASK, "prior", "rim_lift", seed)
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert fold_degrees(env) < 3
-    info, env, _ = run_expert("shifted", "rim_lift", seed)
+    run = run_expert(TASK, "shifted", "rim_lift", seed)
+    info, env = run.info, run.env
     assert info["catastrophe"] and info["catastrophe_kind"] == "drop"
     assert not info["is_success"] and fold_degrees(env) > 20  # the paper plate folded at the grip
     assert env.data.body("cake").xpos[2] < env.data.body("plate_rim").xpos[2]  # the cake slid off
 
 
 @pytest.mark.parametrize("variant", ["prior", "shifted"])
-def test_support_lift_carries_either_plate_flat(variant):
-    info, env, _ = run_expert(variant, "support_lift")
+def test_support_lift_carries_either_plate_flat(run_expert, variant):
+    run = run_expert(TASK, variant, "support_lift")
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert fold_degrees(env) < 5
 
 
-def test_paper_plate_weighs_far_less_on_the_wrist():
+def test_paper_plate_weighs_far_less_on_the_wrist(run_expert):
     """Rule 3: lifted from underneath, the sturdy plate loads the wrist far more than the paper one."""
-    _, _, sturdy = run_expert("prior", "support_lift")
-    _, _, paper = run_expert("shifted", "support_lift")
+    run = run_expert(TASK, "prior", "support_lift")
+    sturdy = run.observations[-1]["context"]
+    run = run_expert(TASK, "shifted", "support_lift")
+    paper = run.observations[-1]["context"]
     assert np.linalg.norm(sturdy[:3]) - np.linalg.norm(paper[:3]) > 1.0
 
 

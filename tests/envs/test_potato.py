@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 from lerobot_kvm.envs.scenarios.potato import CRUSH_DEPTH
-from lerobot_kvm.envs.suite_check import run_episode
+from lerobot_kvm.evaluation.suite_check import run_episode
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -39,7 +39,7 @@ def test_cooked_flesh_gives_way_under_the_same_grip():
         expert = env.scenario.expert("gentle_grasp")
         closing = []
         for _ in range(env._max_episode_steps):
-            *_, terminated, truncated, _ = env.step(expert.act(env))
+            *_, terminated, truncated, _ = env.step(expert.act(env.physics))
             closing.append(env.sensors.finger_width(env.data))
             if terminated or truncated:
                 break

@@ -1,24 +1,9 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 
 TASK = "soda_bottle"
-
-
-def run_expert(variant: str, skill: str, seed: int = 0):
-    """Run a scripted expert; returns the last info, the env (open) and the contexts seen while pushing."""
-    env = KvmObsolescenceEnv(task=TASK, variant=variant)
-    env.reset(seed=seed)
-    expert = env.scenario.expert(skill)
-    pushing = []
-    for _ in range(env._max_episode_steps):
-        obs, _, terminated, truncated, info = env.step(expert.act(env))
-        if expert.phase == "push":
-            pushing.append(obs["context"])
-        if terminated or truncated:
-            break
-    return info, env, np.array(pushing)
 
 
 def bottle_tilt(env) -> float:
@@ -26,30 +11,35 @@ def bottle_tilt(env) -> float:
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_fast_push_slides_a_full_bottle_and_knocks_an_empty_one_over(seed):
-    info, env, _ = run_expert("prior", "fast_push", seed)
+def test_fast_push_slides_a_full_bottle_and_knocks_an_empty_one_over(run_expert, seed):
+    run = run_expert(TASK, "prior", "fast_push", seed)
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert bottle_tilt(env) < 8
-    info, env, _ = run_expert("shifted", "fast_push", seed)
+    run = run_expert(TASK, "shifted", "fast_push", seed)
+    info, env = run.info, run.env
     assert info["catastrophe"] and info["catastrophe_kind"] == "tip_over"
     assert not info["is_success"] and bottle_tilt(env) > 40
 
 
-def test_slow_low_push_moves_the_empty_bottle_upright():
-    info, env, _ = run_expert("shifted", "slow_push")
+def test_slow_low_push_moves_the_empty_bottle_upright(run_expert):
+    run = run_expert(TASK, "shifted", "slow_push")
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert bottle_tilt(env) < 8
 
 
-def test_control_heavier_bottle_still_takes_the_fast_push():
-    info, _, _ = run_expert("control", "fast_push")
+def test_control_heavier_bottle_still_takes_the_fast_push(run_expert):
+    info = run_expert(TASK, "control", "fast_push").info
     assert info["is_success"] and not info["catastrophe"]
 
 
-def test_full_and_empty_bottles_push_back_differently():
+def test_full_and_empty_bottles_push_back_differently(run_expert):
     """Rule 3: pushing the full bottle loads the wrist along the push far more than the empty one."""
-    _, _, full = run_expert("prior", "slow_push")
-    _, _, empty = run_expert("shifted", "slow_push")
+    run = run_expert(TASK, "prior", "slow_push")
+    full = run.contexts("push")
+    run = run_expert(TASK, "shifted", "slow_push")
+    empty = run.contexts("push")
     assert full[:, 0].mean() - empty[:, 0].mean() > 0.8
 
 

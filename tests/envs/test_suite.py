@@ -1,11 +1,14 @@
 """Contract every registered scenario must meet; cheap checks only (expert episodes live in per-scenario tests)."""
 
+import re
+
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import SCENARIOS, KvmObsolescenceEnv
+from lerobot_kvm.envs.catalogue import CATEGORIES, VARIANTS
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 from lerobot_kvm.envs.physics import holds_tool, robot_geom_mask, robot_in_contact
-from lerobot_kvm.envs.scenario import CATEGORIES, VARIANTS, Expert
+from lerobot_kvm.envs.scenario import SCENARIOS, Expert
 
 IDS = sorted(SCENARIOS)
 
@@ -57,7 +60,10 @@ def test_scenario_info_is_complete(sid):
     assert all(text.strip() for text in (info.title, info.harm, info.what_changes, info.success))
     assert info.max_steps > 0
     scenario = SCENARIOS[sid]()
+    assert set(scenario.skills) == {info.prior_skill, info.safe_skill}
     assert all(isinstance(scenario.expert(skill), Expert) for skill in (info.prior_skill, info.safe_skill))
+    with pytest.raises(ValueError, match=re.escape(f"{sid} has no skill 'juggle'; it has {sorted(scenario.skills)}")):
+        scenario.expert("juggle")
 
 
 @pytest.mark.parametrize("sid", IDS)
@@ -87,7 +93,7 @@ def run_until_contact(env: KvmObsolescenceEnv, variant: str, seed: int, actions:
     if holds_tool(env.model):
         return contexts, taken, 0
     for t in range(env._max_episode_steps):
-        action = expert.act(env) if actions is None else actions[t]
+        action = expert.act(env.physics) if actions is None else actions[t]
         taken.append(action)
         obs, _, terminated, truncated, _ = env.step(action)
         contexts.append(obs["context"])

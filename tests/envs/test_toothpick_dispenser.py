@@ -3,31 +3,23 @@
 import numpy as np
 import pytest
 
-from lerobot_kvm.envs import KvmObsolescenceEnv
-
-
-def run(variant: str, skill: str, seed: int = 0) -> tuple[dict, KvmObsolescenceEnv]:
-    env = KvmObsolescenceEnv(task="toothpick_dispenser", variant=variant)
-    env.reset(seed=seed)
-    expert = env.scenario.expert(skill)
-    for _ in range(env._max_episode_steps):
-        _, _, terminated, truncated, info = env.step(expert.act(env))
-        if terminated or truncated:
-            break
-    return info, env
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
 
 
 @pytest.mark.parametrize("seed", [0, 6])
-def test_tilt_and_shake_spills_with_the_cover_open_and_dispenses_one_with_it_closed(seed):
-    info, env = run("shifted", "tilt_and_shake", seed)
+def test_tilt_and_shake_spills_with_the_cover_open_and_dispenses_one_with_it_closed(run_expert, seed):
+    run = run_expert("toothpick_dispenser", "shifted", "tilt_and_shake", seed)
+    info, env = run.info, run.env
     assert info["catastrophe"] and info["catastrophe_kind"] == "spill"
-    info, env = run("prior", "tilt_and_shake", seed)
+    run = run_expert("toothpick_dispenser", "prior", "tilt_and_shake", seed)
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert env.scenario.out == 1
 
 
-def test_slow_tilt_lets_a_single_toothpick_out_of_the_open_dispenser():
-    info, env = run("shifted", "slow_tilt", seed=2)
+def test_slow_tilt_lets_a_single_toothpick_out_of_the_open_dispenser(run_expert):
+    run = run_expert("toothpick_dispenser", "shifted", "slow_tilt", seed=2)
+    info, env = run.info, run.env
     assert info["is_success"] and not info["catastrophe"]
     assert env.scenario.out == 1
 

@@ -16,8 +16,8 @@ import mujoco
 import numpy as np
 from tqdm import tqdm
 
-from .env import KvmObsolescenceEnv
-from .scenario import SCENARIOS, ScenarioInfo
+from ..envs.catalogue import SCENARIO_INFOS, ScenarioInfo
+from ..envs.env import KvmObsolescenceEnv
 
 MIN_SUCCESS = 0.95
 MIN_HARM = 0.90
@@ -52,7 +52,7 @@ def run_episode(env: KvmObsolescenceEnv, variant: str, skill: str, seed: int) ->
     expert = env.scenario.expert(skill)
     steps, seconds = 0, 0.0
     while True:
-        action = expert.act(env)
+        action = expert.act(env.physics)
         start = time.perf_counter()
         _, _, terminated, truncated, info = env.step(action)
         seconds += time.perf_counter() - start
@@ -130,7 +130,7 @@ def check_suite(scenario_ids: list[str], episodes: int, seed: int, progress: boo
         raise ValueError(f"--episodes must be at least 1, got {episodes}")
     start = time.time()
     seeds = [seed + i for i in range(episodes)]
-    total = sum(len(runs_for(SCENARIOS[sid].info)) for sid in scenario_ids) * episodes
+    total = sum(len(runs_for(SCENARIO_INFOS[sid])) for sid in scenario_ids) * episodes
     rows = []
     with tqdm(total=total, unit="episode", disable=not progress) as bar:
         for sid in scenario_ids:

@@ -7,8 +7,8 @@ object is (in A/B) indistinguishable at reset, and that the harm is visible afte
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from .env import KvmObsolescenceEnv
-from .scenario import CATEGORIES, SCENARIOS
+from ..envs.catalogue import CATEGORIES, SCENARIO_INFOS
+from ..envs.env import KvmObsolescenceEnv
 
 LABEL_WIDTH = 190
 CAPTION_HEIGHT = 34
@@ -53,7 +53,7 @@ def scenario_panels(scenario_id: str, seed: int, size: int) -> list[tuple[np.nda
         panels.append((env.render(), f"“{env.task_description}”"))
         expert = env.scenario.expert(skill)
         while True:
-            _, _, terminated, truncated, info = env.step(expert.act(env))
+            _, _, terminated, truncated, info = env.step(expert.act(env.physics))
             if terminated or truncated:
                 break
         panels.append((env.render(), f"{_outcome(info)} after {env.step_count} steps"))
@@ -73,7 +73,7 @@ def contact_sheet(scenario_ids: list[str], seed: int = 0, size: int = 160) -> Im
     for col, title in enumerate(titles):
         draw.text((LABEL_WIDTH + col * (size + PAD), PAD), title, fill=TEXT, font=bold)
     for r, sid in enumerate(scenario_ids):
-        info = SCENARIOS[sid].info
+        info = SCENARIO_INFOS[sid]
         top = HEADER_HEIGHT + r * row_h
         label = "\n".join(
             [
