@@ -230,6 +230,8 @@ def test_controls_change_no_weight_or_memory_of_any_method(tiny_pool, tmp_path) 
     base = {"method": "", "run": 0, "pass": 1, "scenario": "chip_bag", "category": "B"}
     for method in (*KVM_METHODS, "act"):
         policy, pre, post = load_policy(method, checkpoints["kvm" if method in KVM_METHODS else "act"])
+        if method in KVM_METHODS:
+            policy.kvm.threshold()  # eq. 1's statistics, a cache of the safe memory, computed before acting
         before = {k: v.clone() for k, v in policy.state_dict().items()}
         out = {"records": []}
         bench._controls(policy, pre, post, base | {"method": method}, episode_seed(0, 0, 1, 0), out)
