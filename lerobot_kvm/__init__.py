@@ -1,6 +1,8 @@
 """lerobot_kvm: CODA-Prompt + Knowledge Validity Module for LeRobot, and its MuJoCo suite.
 
-Importing the package registers the `coda_kvm` policy and the `kvm_obsolescence` env type.
+Importing `lerobot_kvm.policy` registers the `coda_kvm` policy type and `lerobot_kvm.envs` the `kvm_obsolescence`
+env type; LeRobot's CLIs import both through the plugin module `lerobot_policy_coda_kvm`. The package itself
+imports neither, so that a command that needs neither (`lerobot-kvm --help`) starts without torch or LeRobot.
 """
 
 import os
@@ -8,5 +10,3 @@ import os
 # The suite renders offscreen; MuJoCo picks its GL backend when it is first imported, so the headless default
 # is set before that (an explicit MUJOCO_GL always wins).
 os.environ.setdefault("MUJOCO_GL", "egl")
-
-from . import envs, policy  # noqa: E402, F401

@@ -124,11 +124,12 @@ def load_policy(
     settings over the checkpoint's KVM config, under the method's own switches."""
     from lerobot.configs.policies import PreTrainedConfig
 
+    from ..policy import CodaKvmPolicy  # importing it registers the `coda_kvm` config type
+
     config = PreTrainedConfig.from_pretrained(weights or checkpoint)
     config.device = device
     if method in KVM_METHODS:
-        from ..policy import CodaKvmPolicy as policy_class
-
+        policy_class = CodaKvmPolicy
         config.kvm = replace(config.kvm, **{**(kvm or {}), **KVM_METHODS[method]})
     else:
         from lerobot.policies.act.modeling_act import ACTPolicy as policy_class

@@ -25,8 +25,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("benchmark", help="the knowledge-obsolescence benchmark: challenge protocol, report, plots")
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", required=True, help="benchmark config (see configs/benchmark_*.json)")
     p.add_argument("--output-dir", required=True, help="where the pool, episodes, results and report go (resumable)")
     p.add_argument("--methods", help="comma list overriding the config's methods")

@@ -15,8 +15,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("catalogue", help="write the Markdown scenario catalogue from the registry")
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="docs/scenarios.md")
     p.add_argument("--tasks", default="all", help="scenario ids, categories (A,B,C) or 'all', comma separated")
     p.set_defaults(func=run)

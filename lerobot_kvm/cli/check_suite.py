@@ -58,8 +58,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("check-suite", help="run the scripted experts on every scenario and check the thresholds")
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--episodes", type=int, default=20, help="episodes per scenario x variant x skill")
     p.add_argument("--seed", type=int, default=0, help="episode seeds are seed, seed+1, ...")
     p.add_argument("--tasks", default="all", help="scenario ids, categories (A,B,C) or 'all', comma separated")

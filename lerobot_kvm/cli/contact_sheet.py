@@ -16,8 +16,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("contact-sheet", help="one PNG: each scenario at reset and after the prior skill, both variants")
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="docs/contact_sheet.png")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--tasks", default="all", help="scenario ids, categories (A,B,C) or 'all', comma separated")

@@ -154,8 +154,7 @@ def kvm_choice(p: argparse.ArgumentParser, name: str, choices: tuple[str, ...], 
     )
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("kvm-check", help="KVM validity per scenario after one failure and its feedback")
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tasks", default="all", help="scenario ids, categories (A,B,C) or 'all', comma separated")
     p.add_argument("--episodes", type=int, default=8, help="offline expert episodes per skill (prior variant)")
     p.add_argument("--held-out", type=int, default=4, help="held-out seeds per (variant, skill)")

@@ -1,32 +1,34 @@
 """`lerobot-kvm`: the project's own commands (LeRobot's CLIs do training and evaluation)."""
 
 import argparse
+import importlib
 import signal
 import sys
 
-from . import (
-    benchmark,
-    catalogue,
-    check_suite,
-    contact_sheet,
-    kvm_check,
-    overhead,
-    record,
-    train_continual,
-    walkthrough,
-)
-
+# command -> (its module in this package, one line of help). A command's module, and the libraries it needs, is
+# imported only when that command runs or shows its own help: `lerobot-kvm --help` imports neither torch nor LeRobot.
 COMMANDS = {
-    "record": record,
-    "train-continual": train_continual,
-    "benchmark": benchmark,
-    "walkthrough": walkthrough,
-    "check-suite": check_suite,
-    "contact-sheet": contact_sheet,
-    "catalogue": catalogue,
-    "overhead": overhead,
-    "kvm-check": kvm_check,
+    "record": ("record", "record scripted-expert episodes into a LeRobotDataset"),
+    "train-continual": ("train_continual", "train a task sequence with lerobot-train and report CL metrics"),
+    "benchmark": ("benchmark", "the knowledge-obsolescence benchmark: challenge protocol, report, plots"),
+    "walkthrough": ("walkthrough", "record, train and evaluate coda_kvm on egg_vs_stone"),
+    "check-suite": ("check_suite", "run the scripted experts on every scenario and check the thresholds"),
+    "contact-sheet": ("contact_sheet", "one PNG: each scenario at reset and after the prior skill, both variants"),
+    "catalogue": ("catalogue", "write the Markdown scenario catalogue from the registry"),
+    "overhead": ("overhead", "KVM latency overhead: off vs gate closed vs gate open (ratios)"),
+    "kvm-check": ("kvm_check", "KVM validity per scenario after one failure and its feedback"),
 }
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The CLI's parser; only `command`'s own arguments are loaded (every other command is listed by name)."""
+    parser = argparse.ArgumentParser(prog="lerobot-kvm", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, (module, help_) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_, description=help_)
+        if name == command:
+            importlib.import_module(f"{__package__}.{module}").add_arguments(p)
+    return parser
 
 
 def exit_on_sigterm() -> None:
@@ -41,11 +43,9 @@ def exit_on_sigterm() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     exit_on_sigterm()
-    parser = argparse.ArgumentParser(prog="lerobot-kvm", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
-    for module in COMMANDS.values():
-        module.add_parser(sub)
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    command = next((a for a in argv if not a.startswith("-")), None)
+    args = build_parser(command if command in COMMANDS else None).parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except (ValueError, FileExistsError, FileNotFoundError) as err:

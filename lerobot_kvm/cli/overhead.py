@@ -33,8 +33,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("overhead", help="KVM latency overhead: off vs gate closed vs gate open (ratios)")
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy-path", required=True, help="a coda_kvm checkpoint (pretrained_model directory)")
     p.add_argument("--json", help="write the measurement here")
     p.add_argument("--steps", type=int, default=200, help="model calls per mode")

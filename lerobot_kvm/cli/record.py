@@ -37,8 +37,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("record", help="record scripted-expert episodes into a LeRobotDataset")
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spec", help="JSON recording spec (see datasets/specs/)")
     p.add_argument("--scenarios", help="scenario ids, categories (A,B,C) or 'all', comma separated")
     p.add_argument("--variants", default="prior", help="comma list of variants (prior, shifted, control)")

@@ -21,8 +21,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("train-continual", help="train a task sequence with lerobot-train and report CL metrics")
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", required=True, help="sequence config (see configs/cl_*.json)")
     p.add_argument("--output-dir", required=True, help="where stages, evaluations and results go (resumable)")
     p.add_argument("--dataset-root", help="the sequence's dataset (default datasets/kvm_cl_<name>; recorded if absent)")

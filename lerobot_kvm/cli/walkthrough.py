@@ -79,8 +79,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("walkthrough", help="record, train and evaluate coda_kvm on egg_vs_stone")
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spec", default=str(DEFAULT_SPEC), help="recording spec for the demo dataset")
     p.add_argument("--dataset-root", help="where the dataset lives (default datasets/<spec name>)")
     p.add_argument("--output-dir", default="outputs/walkthrough")

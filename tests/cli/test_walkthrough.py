@@ -1,13 +1,13 @@
 """`lerobot-kvm walkthrough`'s wiring: the device reaches both tools, and a rerun never reuses a dataset or a
 policy made with other settings (the real tools run in `test_lerobot_cli`)."""
 
-import argparse
 import json
 from dataclasses import asdict
 
 import pytest
 
 from lerobot_kvm.cli import walkthrough
+from lerobot_kvm.cli.main import build_parser
 from lerobot_kvm.datasets.labels import LABELS_FILE
 from lerobot_kvm.datasets.recorder import RecordingSpec
 
@@ -41,9 +41,7 @@ def _recorded(root, spec: RecordingSpec) -> None:
 
 
 def _walkthrough(tmp_path, *extra: str) -> int:
-    parser = argparse.ArgumentParser()
-    walkthrough.add_parser(parser.add_subparsers())
-    args = parser.parse_args(
+    args = build_parser("walkthrough").parse_args(
         ["walkthrough", f"--dataset-root={tmp_path / 'data'}", f"--output-dir={tmp_path / 'out'}", *extra]
     )
     return args.func(args)

@@ -83,12 +83,12 @@ def test_with_history_joins_each_context_with_the_earlier_ones_of_its_episode() 
 def test_a_saved_report_is_tabulated_and_plotted_without_measuring(tmp_path, capsys) -> None:
     from pathlib import Path
 
-    from lerobot_kvm.cli import kvm_check
+    from lerobot_kvm.cli.main import build_parser
 
     report = Path(__file__).resolve().parents[2] / "docs" / "reports" / "kvm_check_neighbour_reconstruction.json"
-    parser = argparse.ArgumentParser()
-    kvm_check.add_parser(parser.add_subparsers())
-    args = parser.parse_args(["kvm-check", f"--from-json={report}", f"--plot={tmp_path / 'check.png'}"])
+    args = build_parser("kvm-check").parse_args(
+        ["kvm-check", f"--from-json={report}", f"--plot={tmp_path / 'check.png'}"]
+    )
     assert args.func(args) == 0
     assert "15/18 scenarios pass at every seed (15 at seed 0, 15 at seed 1, 15 at seed 2)" in capsys.readouterr().out
     assert (tmp_path / "check.png").stat().st_size > 0
