@@ -88,6 +88,8 @@ def test_loading_a_policy_or_the_env_config_leaves_the_simulator_out() -> None:
         "from lerobot_kvm.envs.catalogue import catalogue_markdown\n"
         "KvmObsolescenceEnvConfig(task='all'); catalogue_markdown(resolve_tasks('all'))\n"
         "assert 'mujoco' not in sys.modules, 'mujoco was imported'\n"
+        "from lerobot_kvm.envs import KvmObsolescenceEnv  # the env itself loads the simulator on first use\n"
+        "assert 'mujoco' in sys.modules and KvmObsolescenceEnv.__name__ == 'KvmObsolescenceEnv'\n"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
