@@ -81,6 +81,8 @@ class BenchmarkConfig:
     kvm: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if not self.methods or not self.scenarios:
+            raise ValueError(f"a benchmark needs methods and scenarios, got {self.methods} and {self.scenarios}")
         unknown = [m for m in self.methods if m not in KVM_METHODS and m not in PEER_METHODS]
         if unknown:
             raise ValueError(f"unknown methods {unknown}; known: {[*KVM_METHODS, *PEER_METHODS]}")

@@ -3,19 +3,22 @@
 
 import argparse
 import shlex
+from dataclasses import replace
 from pathlib import Path
 
 from ..benchmark.protocol import Benchmark, BenchmarkConfig
 
 
 def run(args: argparse.Namespace) -> int:
-    config = BenchmarkConfig.from_json(args.config)
-    if args.methods:
-        config.methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    if args.runs:
-        config.runs = args.runs
+    overrides: dict = {}
+    if args.methods is not None:
+        overrides["methods"] = [m.strip() for m in args.methods.split(",") if m.strip()]
+    if args.runs is not None:
+        overrides["runs"] = args.runs
     if args.dataset_root:
-        config.dataset_root = args.dataset_root
+        overrides["dataset_root"] = args.dataset_root
+    # the config's own checks see the command line's values too, before anything is trained or written
+    config = replace(BenchmarkConfig.from_json(args.config), **overrides)
     out = Path(args.output_dir)
     launcher = shlex.split(args.launcher) if args.launcher else []
     results = Benchmark(config, out, args.config, launcher, device=args.device).run()
