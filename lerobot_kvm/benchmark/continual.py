@@ -27,6 +27,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from ..datasets.json_config import build, build_list, read_json
 from ..datasets.labels import load_labels
 from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
 from ..envs.catalogue import scenario_info
@@ -38,15 +39,6 @@ CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"
 TIMING = "timing.json"  # a finished stage's training wall time, kept for runs that resume
 POLICIES = ("coda_kvm", "act")
 MODES = ("sequential", "joint")
-
-
-def read_config(cls: type, path: str | Path) -> dict[str, Any]:
-    """A JSON config's raw fields, refusing keys the dataclass `cls` does not have (typos fail loudly)."""
-    raw = json.loads(Path(path).read_text())
-    unknown = set(raw) - set(cls.__dataclass_fields__)
-    if unknown:
-        raise ValueError(f"{path}: unknown keys {sorted(unknown)}")
-    return raw
 
 
 @dataclass
@@ -148,11 +140,11 @@ class SequenceConfig:
 
     @classmethod
     def from_json(cls, path: str | Path) -> "SequenceConfig":
-        raw = read_config(cls, path)
-        raw["tasks"] = [TaskSpec(**t) for t in raw.get("tasks", [])]
-        raw["pretrain_tasks"] = [TaskSpec(**t) for t in raw.get("pretrain_tasks", [])]
-        raw["methods"] = [MethodSpec(**m) for m in raw.get("methods", [])]
-        return cls(**raw)
+        raw = read_json(path)
+        for key, spec in (("tasks", TaskSpec), ("pretrain_tasks", TaskSpec), ("methods", MethodSpec)):
+            if key in raw:
+                raw[key] = build_list(spec, raw, key, str(path))
+        return build(cls, raw, str(path))
 
     @property
     def repo_id(self) -> str:

@@ -35,13 +35,14 @@ from typing import Any
 import torch
 from tqdm import tqdm
 
+from ..datasets.json_config import build, read_json
 from ..envs.catalogue import SCENARIO_INFOS, scenario_info
 from ..envs.env import KvmObsolescenceEnv
 from ..evaluation.rollouts import expert_rollout, policy_processors, run_attempt
 from ..evaluation.validity_check import CONTEXT, shift_step
 from ..kvm.configuration import KvmConfig
 from ..policy.feedback import chunk_targets, skill_by_name
-from .continual import ContinualRun, SequenceConfig, read_config
+from .continual import ContinualRun, SequenceConfig
 from .resume import check_settings
 
 # Methods evaluated on the `coda_kvm` pool checkpoint, with the KVM settings that make them.
@@ -101,7 +102,7 @@ class BenchmarkConfig:
 
     @classmethod
     def from_json(cls, path: str | Path) -> "BenchmarkConfig":
-        return cls(**read_config(cls, path))
+        return build(cls, read_json(path), str(path))
 
 
 # An episode's role within one scenario of one pass: its seed is `episode_seed(...) + offset`.

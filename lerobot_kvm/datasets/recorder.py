@@ -21,6 +21,7 @@ from ..envs.catalogue import scenario_info
 from ..envs.configuration_kvm_obsolescence import OBS_CONTEXT
 from ..envs.env import KvmObsolescenceEnv
 from ..envs.sensing import ACTION_NAMES, STATE_NAMES, context_names
+from .json_config import build, build_list, read_json
 from .labels import LABELS_FILE
 
 OUTCOMES = ("success", "failure", "catastrophe")
@@ -76,9 +77,9 @@ class RecordingSpec:
 
     @classmethod
     def from_json(cls, path: str | Path) -> "RecordingSpec":
-        raw = json.loads(Path(path).read_text())
-        raw["items"] = [RecordItem(**it) for it in raw.get("items", [])]
-        return cls(**raw)
+        raw = read_json(path)
+        raw["items"] = build_list(RecordItem, raw, "items", str(path))
+        return build(cls, raw, str(path))
 
     def vocab(self) -> dict[str, list[str]]:
         return {
