@@ -499,6 +499,10 @@ class CodaKvmPolicy(PreTrainedPolicy):
                 f"incompatible coda_kvm checkpoint {model_file}: missing keys {missing}, "
                 f"unexpected keys {unexpected}, shape mismatches {mismatched}"
             )
+        # a NaN or inf weight would only show as NaN actions: refused here, by name
+        broken = [k for k, _ in model.named_parameters() if not torch.isfinite(state[k]).all()]
+        if broken:
+            raise ValueError(f"coda_kvm checkpoint {model_file} has non-finite weights in {broken[:5]}")
         model.load_state_dict(state, strict=True)
         if model.config.skill_name not in {skill.name for skill in model.skills}:
             model.begin_new_skill(model.config.skill_name, model.config.skill_description)

@@ -109,3 +109,15 @@ def test_lerobot_train_resume_restores_the_kvm_memory(tmp_path) -> None:
         torch.equal(first["kvm.labels.table"], second["kvm.labels.table"])
         and (first["kvm.labels.table"][:2] >= 0).all()
     )
+
+
+def test_a_checkpoint_with_non_finite_weights_is_refused_by_name(make_policy, tmp_path) -> None:
+    from safetensors.torch import save_file
+
+    make_policy().save_pretrained(tmp_path)
+    state = load_file(tmp_path / "model.safetensors")
+    key = "kvm.energy.net.0.weight"
+    state[key][0, 0] = float("nan")
+    save_file(state, tmp_path / "model.safetensors")
+    with pytest.raises(ValueError, match=rf"non-finite weights in \['{key}'\]"):
+        CodaKvmPolicy.from_pretrained(tmp_path)
