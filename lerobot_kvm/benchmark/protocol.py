@@ -41,7 +41,8 @@ from ..envs.env import KvmObsolescenceEnv
 from ..evaluation.rollouts import expert_rollout, policy_processors, run_attempt
 from ..evaluation.validity_check import CONTEXT, shift_step
 from ..kvm.configuration import KvmConfig
-from ..policy.feedback import chunk_targets, skill_by_name
+from ..kvm.supervisor import FEEDBACK_LR
+from ..policy.feedback import FOCUSED_LR, chunk_targets, skill_by_name
 from .continual import ContinualRun, SequenceConfig
 from .resume import check_settings
 
@@ -144,6 +145,20 @@ def load_policy(
 
 # Every other method is compared with this one by a paired interval on each rate's difference (docs/benchmark.md).
 REFERENCE_METHOD = "coda_kvm"
+
+
+def feedback_budget(method: str, runs: list[dict[str, Any]], cfg: "BenchmarkConfig") -> dict[str, Any]:
+    """What one method spent on its feedbacks: how many, the gradient steps each counted, and the step sizes."""
+    steps = sorted({f["gradient_steps"] for run in runs for f in run["feedback"]})
+    if uses_validity(method):
+        rates = {"kvm_lr": FEEDBACK_LR, "new_skill_lr": FOCUSED_LR}
+    else:
+        rates = {"lr": cfg.finetune_lr, "batch": cfg.finetune_batch}
+    return {
+        "feedbacks": sum(len(run["feedback"]) for run in runs),
+        "steps_each": steps,
+        "budget": cfg.feedback_steps,
+    } | rates
 
 
 def uses_validity(method: str) -> bool:
@@ -457,7 +472,9 @@ class Benchmark:
         if uses_validity(method):
             report = policy.kvm_feedback(attempt["outcome"], attempt["trace"], demonstration=demo, gradient_steps=steps)
             return {
-                "gradient_steps": steps,
+                "gradient_steps": report["kvm_steps"] + report["skill_steps"],  # everything the mechanism trained
+                "kvm_steps": report["kvm_steps"],
+                "skill_steps": report["skill_steps"],
                 "culprit": report.get("culprit"),
                 "attribution": report.get("attribution"),
                 "hypothesis": report.get("hypothesis"),
@@ -520,7 +537,7 @@ class Benchmark:
                 cfg.passes,
                 uses_validity(method),
             )
-            | {"wall_time_s": sum(run["wall_time_s"] for run in runs)}
+            | {"wall_time_s": sum(run["wall_time_s"] for run in runs), "feedback": feedback_budget(method, runs, cfg)}
             for method, runs in per_method.items()
         }
         by_method = {method: [r for r in records if r["method"] == method] for method in per_method}

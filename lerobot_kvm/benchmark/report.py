@@ -68,6 +68,26 @@ def method_table(results: dict[str, Any]) -> list[str]:
     return _table([*header, "false interventions (%)", "episodes + feedback (min)"], rows)
 
 
+def feedback_lines(results: dict[str, Any]) -> list[str]:
+    """Each method's feedback budget as spent: how many feedbacks, the gradient steps each counted, the step sizes."""
+    parts = []
+    for name, res in results["methods"].items():
+        spent = res.get("feedback")
+        if spent is None:
+            continue
+        steps = "/".join(str(n) for n in spent["steps_each"]) or "-"
+        rates = ", ".join(f"{k} {v:g}" for k, v in spent.items() if k not in ("feedbacks", "steps_each", "budget"))
+        parts.append(f"`{name}` {spent['feedbacks']} x {steps} steps ({rates})")
+    if not parts:
+        return []
+    budget = results["config"]["feedback_steps"]
+    return [
+        f"Feedback: {budget} gradient steps per failed first attempt, counted over everything a method trains "
+        "(a validity method's KVM and new skill together): " + "; ".join(parts) + ".",
+        "",
+    ]
+
+
 DIFFERENCE_LABELS = {
     "success_rate": "success",
     "first_attempt_success_rate": "1st attempt",
@@ -199,6 +219,7 @@ def markdown(results: dict[str, Any], plots: list[Path]) -> str:
         "CFR: share of challenge attempts ending in a catastrophe. Prior retention: prior-variant controls solved. "
         "Brackets: 95 % interval, bootstrap over runs and scenarios (docs/benchmark.md).",
         "",
+        *feedback_lines(results),
         *difference_table(results),
         "## Gate and validity statistics (Table 10)",
         "",

@@ -76,7 +76,6 @@ class KvmConfig:
     # App. D: a failure with a corrective demonstration tests the knowledge gap at once (with every alternative
     # weak, suppressing the culprit would leave no strategy at all).
     gap_on_failure: bool = True
-    focused_steps: int = 50  # App. D: focused gradient steps on a newly created skill only
 
     # ------------------------------------------------------------------ telemetry (Algorithm 1: decisions observable)
     trace_capacity: int = 2000  # Algorithm 1's trace: control steps kept per attempt for the feedback
@@ -107,7 +106,6 @@ class KvmConfig:
         non_negative_ints = (
             "gate_min_count",
             "feedback_steps",
-            "focused_steps",
             "hard_safe_replay",
             "feedback_hard_safe_replay",
         )

@@ -21,15 +21,17 @@ after an attempt:
   confirmation. With a demonstration, the knowledge gap is tested at once (`kvm.gap_on_failure`): if every
   alternative to the culprit is weak in the failure context, suppression alone would leave no strategy, so a new
   *gated* skill that corrects the culprit (`fusion.correction_validity`) is begun and seeded from the demonstration:
-  KVM positives from the demonstrated and the failed contexts, then the feedback's gradient budget as focused steps
-  on its parameters only. Later failures of the same hypothesis, or blamed on it in its task, refine it.
+  KVM positives from the demonstrated and the failed contexts; the feedback's gradient budget is then split between
+  the KVM's update and focused steps on the new skill's parameters only (`split_budget`: the budget counts all the
+  mechanism trains). Later failures of the same hypothesis, or blamed on it in its task, refine it.
 * success: safe samples for the dominant skill (routine ones, without intervention, also feed the gate window
   and E_c's reconstruction). Interventions (a candidate suppressed, v_i < tau_v) in a context similar to an open
   hypothesis of that skill count for it; an intervention confirms it when the counter exceeds N_p and the skill
   was necessary (normalised alpha_i > tau_high). Confirmation makes the hypothesis's negatives permanent and, if
   every alternative stayed weak (knowledge gap), creates a new gated skill seeded from this successful interaction
   (and the demonstration, if any): new CODA components (Gram-Schmidt, `policy.begin_new_skill`), KVM positives
-  for it, and a few focused gradient steps on the new skill's parameters only.
+  for it, and the feedback's budget split between the KVM and the new skill; with no gradient steps granted, no
+  skill is created (an untrained one would only be noise).
 """
 
 from collections.abc import Sequence
@@ -470,17 +472,19 @@ def _learn_from_failure(
     failure = _Failure(culprit, context, hypothesis_id, permanent, experience, [failure_context])
     if frames is not None:
         _learn_from_demonstration(policy, attempt, failure, attribution, frames, demonstration)
-    steps = attempt.gradient_steps
+    kvm_steps, skill_steps = split_budget(attempt.gradient_steps, failure.gap is not None)
     fails = torch.cat(failure.negatives)
     new_fail = (fails, torch.full((len(fails),), culprit, device=c_raw.device))
     if failure.positives:
         new_safe = (torch.cat([c for c, _ in failure.positives]), torch.cat([s for _, s in failure.positives]))
     else:
         new_safe = (c_raw[:0], attempt.dominant[:0])
-    metrics = kvm.train_online(steps, attempt.active, new_safe, new_fail) if steps else {}
-    report: dict[str, Any] = {}
-    if failure.gap is not None:  # the gradient budget the baselines fine-tune with
-        report["new_skill"] = failure.gap | _focus(policy, failure.gap["index"], frames, failure.demo_query, steps)
+    metrics = kvm.train_online(kvm_steps, attempt.active, new_safe, new_fail) if kvm_steps else {}
+    report: dict[str, Any] = {"kvm_steps": kvm_steps, "skill_steps": skill_steps}
+    if failure.gap is not None:
+        report["new_skill"] = failure.gap | _focus(
+            policy, failure.gap["index"], frames, failure.demo_query, skill_steps
+        )
     return report | dict(
         culprit=culprit,
         attribution={k: v for k, v in attribution.items() if k != "culprit"},
@@ -577,14 +581,28 @@ def _learn_from_success(
                 new_skill_seed.append((h, i))
     metrics = {}
     steps = attempt.gradient_steps
-    if new_skill_seed:
+    report["kvm_steps"], report["skill_steps"] = steps, 0
+    if new_skill_seed and steps:  # a new skill needs training, and training is what the budget counts
         h, culprit = new_skill_seed[0]
-        report["new_skill"] = _create_skill(policy, h, culprit, attempt.task, trace, demonstration, steps)
+        kvm_steps, skill_steps = split_budget(steps, True)
+        report["new_skill"] = _create_skill(
+            policy, h, culprit, attempt.task, trace, demonstration, kvm_steps, skill_steps
+        )
+        report["kvm_steps"], report["skill_steps"] = kvm_steps, skill_steps
     elif steps:
         none = (attempt.c_raw[:0], attempt.dominant[:0])
         metrics = kvm.train_online(steps, attempt.active, (attempt.c_raw, attempt.dominant), none)
+    elif new_skill_seed:
+        report["new_skill"] = {"created": False, "reason": "no gradient steps to train it with"}
     report["kvm_metrics"] = metrics
     return report
+
+
+def split_budget(steps: int, new_skill: bool) -> tuple[int, int]:
+    """(KVM steps, new-skill steps): one feedback's gradient budget counts everything the mechanism trains, as a
+    baseline's fine-tuning does. With a new skill to train, it gets half (the KVM the other half, and the odd
+    step); otherwise the KVM gets all of it."""
+    return (steps - steps // 2, steps // 2) if new_skill else (steps, 0)
 
 
 def skill_by_name(policy: FeedbackPolicy, name: str | None) -> int | None:
@@ -657,11 +675,11 @@ def _create_skill(
     task: str,
     trace: KvmTrace,
     demonstration: dict[str, Any] | None,
-    steps: int,
+    kvm_steps: int,
+    skill_steps: int,
 ) -> dict[str, Any] | None:
     """Knowledge gap after a confirmation: a new gated skill seeded from the successful interaction (and the
-    demonstration)."""
-    cfg = policy.config.kvm
+    demonstration), trained with the feedback's budget split between the KVM and the new skill."""
     kvm = policy.kvm
     if policy.n_skills >= policy.config.n_tasks:
         return {"created": False, "reason": f"the prompt pool is full ({policy.config.n_tasks} skills)"}
@@ -682,12 +700,12 @@ def _create_skill(
     fails = kvm.fail_online.data[tagged]
     active = policy.kvm_active_skills()
     metrics = kvm.train_online(
-        max(steps, cfg.feedback_steps), active, (seed, skills.to(device)), (fails, torch.full((len(fails),), culprit))
+        kvm_steps, active, (seed, skills.to(device)), (fails, torch.full((len(fails),), culprit))
     )
     return {
         "created": True,
         "index": index,
         "name": policy.skills[index].name,
         "kvm_metrics": metrics,
-        **_focus(policy, index, frames, query, cfg.focused_steps),
+        **_focus(policy, index, frames, query, skill_steps),
     }

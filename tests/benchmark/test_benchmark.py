@@ -157,6 +157,10 @@ def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
     failed_first = [r for r in act_run["records"] if r["kind"] == "challenge" and r["attempt"] == 1]
     failed_first = [r for r in failed_first if r["outcome"] != "success"]
     assert len(act_run["feedback"]) == len(failed_first)  # one fine-tuning per failed first attempt
+    for method in config["methods"]:  # every method's counted steps are the budget, whatever it trains
+        feedback = json.loads((out / "episodes" / method / "run_0.json").read_text())["feedback"]
+        assert all(f["gradient_steps"] == config["feedback_steps"] for f in feedback), method
+        assert results["methods"][method]["feedback"]["steps_each"] in ([], [config["feedback_steps"]]), method
 
     report = (out / "report.md").read_text()
     for heading in ("Table 1/9", "Table 4", "Table 10", "Table 11"):

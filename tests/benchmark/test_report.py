@@ -1,6 +1,6 @@
 """The benchmark report's tables from measured values."""
 
-from lerobot_kvm.benchmark.report import difference_table, overhead_table
+from lerobot_kvm.benchmark.report import difference_table, feedback_lines, overhead_table
 
 MEASURED = {
     "model_call_ms": {"off": 4.0, "closed": 4.3, "open": 5.0},
@@ -47,3 +47,16 @@ def test_difference_table_says_where_no_difference_is_detectable() -> None:
     assert cells[3] == "+5.0 [-10.0, +20.0], no detectable difference"
     assert cells[2] == "-"  # a rate not measured for this pair
     assert difference_table({"differences": {"reference": None, "methods": {}}}) == []
+
+
+def test_feedback_lines_state_each_methods_budget_and_step_sizes() -> None:
+    results = {
+        "config": {"feedback_steps": 100},
+        "methods": {
+            "coda_kvm": {"feedback": {"feedbacks": 3, "steps_each": [100], "budget": 100, "kvm_lr": 1e-3}},
+            "act": {"feedback": {"feedbacks": 2, "steps_each": [100], "budget": 100, "lr": 1e-4, "batch": 16}},
+        },
+    }
+    line = feedback_lines(results)[0]
+    assert line.startswith("Feedback: 100 gradient steps per failed first attempt")
+    assert "`coda_kvm` 3 x 100 steps (kvm_lr 0.001)" in line and "`act` 2 x 100 steps (lr 0.0001, batch 16)" in line

@@ -37,7 +37,6 @@ def kvm_config(**overrides: Any) -> KvmConfig:
         feedback_steps=5,
         feedback_batch=16,
         feedback_hard_safe_replay=4,
-        focused_steps=3,
         trace_capacity=100,
     )
     kwargs.update(overrides)

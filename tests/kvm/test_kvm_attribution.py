@@ -152,10 +152,10 @@ def test_confirmed_gap_creates_a_new_skill_trained_alone(make_policy, attempt) -
     backbone = {k: v.clone() for k, v in policy.backbone.state_dict().items()}
     old_skill = {k: v.clone() for k, v in policy.pool.tasks[0].state_dict().items()}
     reports = []
-    for _ in range(4):  # similar contexts, the culprit suppressed, success
+    for budget in (0, 0, 0, 4):  # similar contexts, the culprit suppressed, success; the last one with a budget
         trace = attempt(policy, EGG, steps=6, seed=0)
         _force_suppression(trace, 0)
-        reports.append(policy.kvm_feedback("success", trace))
+        reports.append(policy.kvm_feedback("success", trace, gradient_steps=budget))
     assert [len(r["interventions"]) for r in reports] == [1, 1, 1, 1]
     assert all(r["interventions"][0]["necessary"] for r in reports)  # the only skill: relevance 1 > tau_high
     assert [bool(r["confirmed"]) for r in reports] == [False, False, False, True]
@@ -173,6 +173,20 @@ def test_confirmed_gap_creates_a_new_skill_trained_alone(make_policy, attempt) -
     for k, v in policy.pool.tasks[0].state_dict().items():
         assert torch.equal(v, old_skill[k]), k
     assert "focused_l1" in new and new["seed_frames"] == 6
+    # the budget counts everything trained: the KVM's steps and the new skill's together
+    assert (reports[-1]["kvm_steps"], reports[-1]["skill_steps"]) == (2, 2)
+
+
+def test_a_confirmation_without_a_gradient_budget_creates_no_untrained_skill(make_policy, attempt) -> None:
+    policy = make_policy()
+    policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6, seed=0), gradient_steps=2)
+    for _ in range(4):
+        trace = attempt(policy, EGG, steps=6, seed=0)
+        _force_suppression(trace, 0)
+        report = policy.kvm_feedback("success", trace)
+    assert report["confirmed"] and report["confirmed"][0]["gap"]
+    assert report["new_skill"] == {"created": False, "reason": "no gradient steps to train it with"}
+    assert policy.n_skills == 1 and (report["kvm_steps"], report["skill_steps"]) == (0, 0)
 
 
 def _demonstration(policy, make_batch, steps: int = 5, skill: str | None = None) -> dict:
@@ -205,6 +219,7 @@ def test_a_failure_without_a_strong_alternative_seeds_a_correcting_skill_from_it
     assert report["positives_added"] == 5 + 6  # the demonstrated contexts and those the culprit failed in
     assert report["hypothesis"]["gap"] and report["hypothesis"]["new_skill"] == 1
     assert new["seed_frames"] == 5 and "focused_l1" in new
+    assert (report["kvm_steps"], report["skill_steps"]) == (1, 1)  # one budget for the KVM and the new skill
     for k, v in policy.backbone.state_dict().items():
         assert torch.equal(v, backbone[k]), k
     for k, v in policy.pool.tasks[0].state_dict().items():
@@ -229,6 +244,7 @@ def test_no_skill_from_a_failure_when_the_gap_test_is_off_or_an_alternative_is_s
     demo = _demonstration(policy, make_batch)
     report = policy.kvm_feedback("catastrophe", attempt(policy, EGG, steps=6), demonstration=demo, gradient_steps=2)
     assert report["new_skill"] is None and policy.n_skills == 2 and report["demo_skill"] in (0, 1)
+    assert (report["kvm_steps"], report["skill_steps"]) == (2, 0)
     assert report["demo_skill"] != report["culprit"]
 
 
