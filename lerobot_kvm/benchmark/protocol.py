@@ -202,6 +202,15 @@ def finetune(policy: Any, demo: dict[str, Any], steps: int, lr: float, batch_siz
     return {k: float(v) for k, v in info.items() if isinstance(v, int | float)}
 
 
+def begin_feedback_skill(policy: Any, name: str) -> dict[str, Any]:
+    """A new CODA skill for a corrective demonstration: fresh components (Gram-Schmidt against every earlier row),
+    the only prompt rows the fine-tuning then trains. With the pool full, the latest skill is fine-tuned instead."""
+    if policy.n_skills >= policy.config.n_tasks:
+        return {"created": False, "reason": f"the prompt pool is full ({policy.config.n_tasks} skills)"}
+    index = policy.begin_new_skill(name, "learned from a corrective demonstration")
+    return {"created": True, "index": index, "name": name}
+
+
 # ---------------------------------------------------------------------------- episodes
 def episode_fields(result: dict[str, Any]) -> dict[str, Any]:
     """Outcome, length and the KVM's per-step series (None without a validity module) of one attempt."""
@@ -408,7 +417,7 @@ class Benchmark:
                 return
             demo, demo_outcome = expert_rollout(env, info.safe_skill, pre, seed=seed + SEED_OFFSETS["demonstration"])
             out["feedback"].append(
-                {**base, "demonstration": demo_outcome, **self._feedback(method, policy, first, demo)}
+                {**base, "demonstration": demo_outcome, **self._feedback(method, policy, first, demo, base)}
             )
             second_seed = seed + SEED_OFFSETS["attempt_2"]
             second = run_attempt(policy, env, pre, post, seed=second_seed)
@@ -466,7 +475,9 @@ class Benchmark:
             record = {**base, "kind": kind, "attempt": 1, "seed": seed + SEED_OFFSETS[kind]}
             out["records"].append(record | episode_fields(result) | {"pruned": []})
 
-    def _feedback(self, method: str, policy: Any, attempt: dict[str, Any], demo: dict[str, Any]) -> dict[str, Any]:
+    def _feedback(
+        self, method: str, policy: Any, attempt: dict[str, Any], demo: dict[str, Any], base: dict[str, Any]
+    ) -> dict[str, Any]:
         """Spend the feedback budget after a failed first attempt; a short JSON-friendly report."""
         steps = self.config.feedback_steps
         if uses_validity(method):
@@ -482,8 +493,11 @@ class Benchmark:
                 "confirmed": report.get("confirmed"),
                 "pruned": report.get("pruned"),
             }
+        new_skill = None
+        if method in KVM_METHODS:  # the KVM-off core learns the demonstration as CODA-Prompt learns anything new
+            new_skill = begin_feedback_skill(policy, f"{base['scenario']}.feedback_p{base['pass']}")
         info = finetune(policy, demo, steps, self.config.finetune_lr, self.config.finetune_batch)
-        return {"gradient_steps": steps, "finetune": info}
+        return {"gradient_steps": steps, "finetune": info, "new_skill": new_skill}
 
     @staticmethod
     def _report(method: str, policy: Any, attempt: dict[str, Any]) -> list[int]:

@@ -157,6 +157,8 @@ def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
     failed_first = [r for r in act_run["records"] if r["kind"] == "challenge" and r["attempt"] == 1]
     failed_first = [r for r in failed_first if r["outcome"] != "success"]
     assert len(act_run["feedback"]) == len(failed_first)  # one fine-tuning per failed first attempt
+    core = json.loads((out / "episodes" / "coda_prompt" / "run_0.json").read_text())["feedback"]
+    assert all(f["new_skill"]["created"] for f in core)  # the KVM-off core learns each demonstration as a new skill
     for method in config["methods"]:  # every method's counted steps are the budget, whatever it trains
         feedback = json.loads((out / "episodes" / method / "run_0.json").read_text())["feedback"]
         assert all(f["gradient_steps"] == config["feedback_steps"] for f in feedback), method
