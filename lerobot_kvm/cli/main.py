@@ -17,6 +17,7 @@ COMMANDS = {
     "catalogue": ("catalogue", "write the Markdown scenario catalogue from the registry"),
     "overhead": ("overhead", "KVM latency overhead: off vs gate closed vs gate open (ratios)"),
     "kvm-check": ("kvm_check", "KVM validity per scenario after one failure and its feedback"),
+    "skill-matrix": ("skill_matrix", "each skill of a checkpoint forced alone on each scenario variant"),
 }
 
 

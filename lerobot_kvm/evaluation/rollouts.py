@@ -68,9 +68,12 @@ def run_attempt(
     postprocessor: Processor,
     seed: int | None = None,
     max_steps: int | None = None,
+    skill_weights: Tensor | None = None,
 ) -> dict[str, Any]:
     """One attempt of the policy: {"outcome", "steps", "catastrophe_kind", "trace"} (trace: the KVM's record of
-    the attempt, None for a policy without one)."""
+    the attempt, None for a policy without one). `skill_weights` [1, S] forces the fused prompt's skill weights
+    (a `coda_kvm` policy; the KVM is then not consulted)."""
+    extra = {} if skill_weights is None else {"skill_weights": skill_weights}
     obs, info = env.reset(seed=seed)
     policy.reset()
     steps = 0
@@ -78,7 +81,7 @@ def run_attempt(
     for steps in range(1, limit + 1):  # noqa: B007
         batch = preprocessor(observation_batch(obs, env.task_description))
         with torch.inference_mode():
-            action = policy.select_action(batch)
+            action = policy.select_action(batch, **extra)
         action = postprocessor(action)
         obs, _, terminated, truncated, info = env.step(action[0].cpu().numpy())
         if terminated or truncated:

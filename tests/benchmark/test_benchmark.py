@@ -249,6 +249,21 @@ def test_controls_change_no_weight_or_memory_of_any_method(tiny_pool, tmp_path) 
 
 
 @pytest.mark.slow
+def test_the_skill_matrix_forces_each_skill_of_the_pool_alone(tiny_pool) -> None:
+    from lerobot_kvm.evaluation.skill_matrix import CORE, skill_matrix
+
+    sequence = SequenceConfig.from_json(CONFIGS / "cl_tiny.json")
+    checkpoint = ContinualRun(sequence, tiny_pool["out"]).final_checkpoint("coda_kvm")
+    policy, pre, post = load_policy("coda_prompt", checkpoint)
+    matrix = skill_matrix(policy, pre, post, ["egg_vs_stone"], episodes=1)
+    assert matrix["columns"] == ["egg_vs_stone/prior", "egg_vs_stone/shifted"]
+    assert [r["skill"] for r in matrix["rows"]] == [*(s.name for s in policy.skills), CORE]
+    for row in matrix["rows"]:
+        for cell in row["cells"].values():
+            assert cell["episodes"] == 1 and cell["success"] + cell["catastrophe"] <= 1.0
+
+
+@pytest.mark.slow
 def test_kvm_settings_reach_every_validity_method_under_its_own_switches(tiny_pool):
     checkpoint = ContinualRun(SequenceConfig.from_json(CONFIGS / "cl_tiny.json"), tiny_pool["out"]).final_checkpoint(
         "coda_kvm"
