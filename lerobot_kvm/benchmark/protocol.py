@@ -25,9 +25,12 @@ left behind. Nothing the policy sees carries the variant, object parameters or h
 """
 
 import json
+import multiprocessing
+import os
 import shutil
 import time
 from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -202,6 +205,14 @@ def finetune(policy: Any, demo: dict[str, Any], steps: int, lr: float, batch_siz
     return {k: float(v) for k, v in info.items() if isinstance(v, int | float)}
 
 
+def _run_unit(
+    config: BenchmarkConfig, out: Path, device: str, threads: int, method: str, run: int, checkpoint: Path
+) -> dict[str, Any]:
+    """A worker process's (method, run) unit: the same as `Benchmark.finish_run` in the parent, on `threads`."""
+    torch.set_num_threads(threads)
+    return Benchmark(config, out, progress=False, device=device).finish_run(method, run, checkpoint)
+
+
 def begin_feedback_skill(policy: Any, name: str) -> dict[str, Any]:
     """A new CODA skill for a corrective demonstration: fresh components (Gram-Schmidt against every earlier row),
     the only prompt rows the fine-tuning then trains. With the pool full, the latest skill is fine-tuned instead."""
@@ -292,9 +303,14 @@ class Benchmark:
         launcher: Sequence[str] = (),
         progress: bool = True,
         device: str = "cpu",
+        workers: int = 1,
     ) -> None:
         """`launcher`: the multi-process launcher of the pool's `lerobot-train` stages (see `train-continual`);
-        `device`: where the pool trains and every method runs (its timings are that device's)."""
+        `device`: where the pool trains and every method runs (its timings are that device's); `workers`: worker
+        processes that run the independent (method, run) units side by side (1: in this process)."""
+        if workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        self.workers = workers
         self.config = config
         self.out = Path(output_dir)
         self.config_path = config_path
@@ -338,6 +354,7 @@ class Benchmark:
         done, out, weights = self._resume(partial)
         if out is None:
             out = {"method": method, "run": run, "records": [], "probes": [], "feedback": [], "wall_time_s": 0.0}
+            out["feedback_time_s"] = 0.0
         policy, pre, post = load_policy(method, checkpoint, weights, cfg.kvm, self.device)
         if bar is not None:
             bar.update(done * len(cfg.scenarios))
@@ -416,9 +433,10 @@ class Benchmark:
                 out["records"][-1]["pruned"] = self._report(method, policy, first)
                 return
             demo, demo_outcome = expert_rollout(env, info.safe_skill, pre, seed=seed + SEED_OFFSETS["demonstration"])
-            out["feedback"].append(
-                {**base, "demonstration": demo_outcome, **self._feedback(method, policy, first, demo, base)}
-            )
+            started = time.time()
+            feedback = self._feedback(method, policy, first, demo, base)
+            out["feedback_time_s"] = out.get("feedback_time_s", 0.0) + time.time() - started
+            out["feedback"].append({**base, "demonstration": demo_outcome, **feedback})
             second_seed = seed + SEED_OFFSETS["attempt_2"]
             second = run_attempt(policy, env, pre, post, seed=second_seed)
             out["records"].append(
@@ -508,22 +526,51 @@ class Benchmark:
         policy.reset()
         return []
 
-    def _method_runs(self, method: str, checkpoint: Path, bar: tqdm) -> list[dict[str, Any]]:
-        runs = []
-        for run in range(self.config.runs):
-            path = self.out / "episodes" / method / f"run_{run}.json"
-            if path.exists():
-                runs.append(json.loads(path.read_text()))
-                bar.update(self.config.passes * len(self.config.scenarios))
-                continue
-            result = self.run_method(method, run, checkpoint, bar)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(result))
-            tmp.replace(path)  # a finished run is never half-written
-            shutil.rmtree(self._partial_dir(method, run), ignore_errors=True)
-            runs.append(result)
-        return runs
+    def _run_path(self, method: str, run: int) -> Path:
+        return self.out / "episodes" / method / f"run_{run}.json"
+
+    def finish_run(self, method: str, run: int, checkpoint: Path, bar: tqdm | None = None) -> dict[str, Any]:
+        """One (method, run) unit, written whole to `episodes/<method>/run_<r>.json` once it is finished."""
+        result = self.run_method(method, run, checkpoint, bar)
+        path = self._run_path(method, run)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(result))
+        tmp.replace(path)  # a finished run is never half-written
+        shutil.rmtree(self._partial_dir(method, run), ignore_errors=True)
+        return result
+
+    def _all_runs(self, checkpoints: dict[str, Path], bar: tqdm) -> dict[str, list[dict[str, Any]]]:
+        """Every (method, run) unit: finished ones read back, the others run here or in `workers` processes (the
+        units are independent: each starts from the pool checkpoint with its own seeds)."""
+        cfg = self.config
+        per_unit = cfg.passes * len(cfg.scenarios)
+        done: dict[tuple[str, int], dict[str, Any]] = {}
+        pending = []
+        for method in cfg.methods:
+            for run in range(cfg.runs):
+                path = self._run_path(method, run)
+                if path.exists():
+                    done[method, run] = json.loads(path.read_text())
+                    bar.update(per_unit)
+                else:
+                    pending.append((method, run, checkpoints["kvm" if method in KVM_METHODS else "act"]))
+        if self.workers == 1 or len(pending) < 2:
+            for method, run, checkpoint in pending:
+                done[method, run] = self.finish_run(method, run, checkpoint, bar)
+        else:
+            threads = max(1, (os.cpu_count() or 1) // self.workers)
+            context = multiprocessing.get_context("spawn")  # no torch or simulator state inherited by a worker
+            with ProcessPoolExecutor(min(self.workers, len(pending)), mp_context=context) as pool:
+                futures = {
+                    pool.submit(_run_unit, self.config, self.out, self.device, threads, *unit): unit[:2]
+                    for unit in pending
+                }
+                for future in as_completed(futures):
+                    done[futures[future]] = future.result()
+                    bar.set_description(f"{futures[future][0]} run {futures[future][1] + 1} done")
+                    bar.update(per_unit)
+        return {method: [done[method, run] for run in range(cfg.runs)] for method in cfg.methods}
 
     # ------------------------------------------------------------------ everything
     def run(self) -> dict[str, Any]:
@@ -535,13 +582,12 @@ class Benchmark:
         kept = {k: v for k, v in asdict(self.config).items() if k not in FREE_SETTINGS} | {"device": self.device}
         check_settings(self.out, kept, "a benchmark's episodes and overhead")  # its timings name one device
         pool_results, checkpoints = self.grow_pool()
+        pool_done = time.time()
         cfg = self.config
         total = len(cfg.methods) * cfg.runs * cfg.passes * len(cfg.scenarios)
-        per_method: dict[str, list[dict[str, Any]]] = {}
         with tqdm(total=total, unit="challenge", disable=not self.progress) as bar:
-            for method in cfg.methods:
-                checkpoint = checkpoints["kvm" if method in KVM_METHODS else "act"]
-                per_method[method] = self._method_runs(method, checkpoint, bar)
+            per_method = self._all_runs(checkpoints, bar)
+        units_done = time.time()
         records = [r for runs in per_method.values() for run in runs for r in run["records"]]
         probes = [p for runs in per_method.values() for run in runs for p in run["probes"]]
         methods = {
@@ -562,6 +608,15 @@ class Benchmark:
             if reference is not None and method != reference
         }
         overhead = self.overhead(checkpoints["kvm"]) if "kvm" in checkpoints else None
+        all_runs = [run for runs in per_method.values() for run in runs]
+        time_breakdown = {  # this invocation's wall time by phase; the units' own seconds (over workers) beside it
+            "pool_s": pool_done - start,
+            "units_s": units_done - pool_done,
+            "overhead_s": time.time() - units_done,
+            "workers": self.workers,
+            "unit_episodes_and_feedback_s": sum(run["wall_time_s"] for run in all_runs),
+            "unit_feedback_s": sum(run.get("feedback_time_s", 0.0) for run in all_runs),
+        }
         results = {
             "benchmark": cfg.name,
             "config_path": self.config_path,
@@ -579,6 +634,7 @@ class Benchmark:
             "device": self.device,
             "versions": pool_results["versions"],
             "wall_time_s": time.time() - start,
+            "time_breakdown": time_breakdown,
         }
         (self.out / "results.json").write_text(json.dumps(results, indent=2))
         write_report(results, records, probes, self.out)

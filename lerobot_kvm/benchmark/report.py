@@ -68,6 +68,19 @@ def method_table(results: dict[str, Any]) -> list[str]:
     return _table([*header, "false interventions (%)", "episodes + feedback (min)"], rows)
 
 
+def time_lines(breakdown: dict[str, Any] | None) -> list[str]:
+    """Where this invocation's time went: pool, the (method, run) units over their workers, overhead."""
+    if not breakdown:
+        return []
+    m = {k: v / 60 for k, v in breakdown.items() if k.endswith("_s")}
+    return [
+        f"Time: pool {m['pool_s']:.1f} min; (method, run) units {m['units_s']:.1f} min on {breakdown['workers']} "
+        f"worker(s), {m['unit_episodes_and_feedback_s']:.1f} min of unit time of which feedback training "
+        f"{m['unit_feedback_s']:.1f}; overhead measurement {m['overhead_s']:.1f} min.",
+        "",
+    ]
+
+
 def feedback_lines(results: dict[str, Any]) -> list[str]:
     """Each method's feedback budget as spent: how many feedbacks, the gradient steps each counted, the step sizes."""
     parts = []
@@ -209,6 +222,7 @@ def markdown(results: dict[str, Any], plots: list[Path]) -> str:
         f"failed trace, one corrective demonstration and {cfg['feedback_steps']} gradient steps. "
         f"This invocation's wall time {results['wall_time_s'] / 60:.1f} min (finished runs are reused).",
         "",
+        *time_lines(results.get("time_breakdown")),
         *coverage_lines(results["pool"].get("uncovered_scenarios", [])),
         "## Success per category and pass (Table 1/9)",
         "",

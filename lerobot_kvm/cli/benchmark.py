@@ -2,6 +2,7 @@
 `results.json`, `report.md` and `plots/` (see `benchmark.protocol`)."""
 
 import argparse
+import os
 import shlex
 from dataclasses import replace
 from pathlib import Path
@@ -21,7 +22,7 @@ def run(args: argparse.Namespace) -> int:
     config = replace(BenchmarkConfig.from_json(args.config), **overrides)
     out = Path(args.output_dir)
     launcher = shlex.split(args.launcher) if args.launcher else []
-    results = Benchmark(config, out, args.config, launcher, device=args.device).run()
+    results = Benchmark(config, out, args.config, launcher, device=args.device, workers=args.workers).run()
     print()
     print((out / "report.md").read_text())
     print(f"results: {out / 'results.json'}  ({results['wall_time_s'] / 60:.1f} min)")
@@ -37,5 +38,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--launcher", help="multi-process launcher for the pool's lerobot-train stages (as train-continual)")
     p.add_argument(
         "--device", default="cpu", help="torch device of the pool's training and of every method (e.g. cuda)"
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=os.cpu_count() or 1,
+        help="worker processes for the independent (method, run) units (default: the number of cores)",
     )
     p.set_defaults(func=run)

@@ -249,6 +249,42 @@ def test_controls_change_no_weight_or_memory_of_any_method(tiny_pool, tmp_path) 
 
 
 @pytest.mark.slow
+def test_worker_processes_give_the_results_of_one_process(tiny_pool, tmp_path) -> None:
+    import torch
+    from tqdm import tqdm
+
+    config = BenchmarkConfig(
+        name="tiny",
+        sequence=str(CONFIGS / "cl_tiny.json"),
+        scenarios=["egg_vs_stone"],
+        methods=["coda_kvm", "coda_prompt"],
+        passes=1,
+        feedback_steps=2,
+        finetune_batch=4,
+        dataset_root=str(tiny_pool["data"]),
+    )
+    sequence = SequenceConfig.from_json(CONFIGS / "cl_tiny.json")
+    checkpoints = {"kvm": ContinualRun(sequence, tiny_pool["out"]).final_checkpoint("coda_kvm")}
+
+    def summary(per_method: dict) -> dict:
+        return {
+            m: [(r["kind"], r["attempt"], r["outcome"], r["steps"]) for run in runs for r in run["records"]]
+            for m, runs in per_method.items()
+        }
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # as each of two workers on two cores
+    try:
+        serial = Benchmark(config, tmp_path / "serial", progress=False)._all_runs(checkpoints, tqdm(disable=True))
+    finally:
+        torch.set_num_threads(threads)
+    parallel_bench = Benchmark(config, tmp_path / "parallel", progress=False, workers=2)
+    parallel = parallel_bench._all_runs(checkpoints, tqdm(disable=True))
+    assert summary(parallel) == summary(serial)
+    assert all((tmp_path / "parallel" / "episodes" / m / "run_0.json").exists() for m in config.methods)
+
+
+@pytest.mark.slow
 def test_the_skill_matrix_forces_each_skill_of_the_pool_alone(tiny_pool) -> None:
     from lerobot_kvm.evaluation.skill_matrix import CORE, skill_matrix
 

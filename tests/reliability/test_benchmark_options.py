@@ -17,6 +17,7 @@ QUICK = Path(__file__).resolve().parents[2] / "configs" / "benchmark_quick.json"
         ("--methods=", "a benchmark needs methods and scenarios"),
         ("--runs=0", "runs and passes must be >= 1"),
         ("--runs=-2", "runs and passes must be >= 1"),
+        ("--workers=0", "workers must be >= 1"),
     ],
 )
 def test_a_bad_override_fails_at_once_and_writes_nothing(tmp_path, option, message):
