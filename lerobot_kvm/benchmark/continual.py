@@ -33,6 +33,7 @@ from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
 from ..envs.catalogue import scenario_info
 from .cl_metrics import cl_metrics, joint_metrics
 from .lerobot_commands import eval_command, run_logged, train_command
+from .lock import hold
 from .resume import check_settings
 
 CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"
@@ -375,6 +376,11 @@ class ContinualRun:
         return {"mode": "joint", "final": final, "metrics": joint_metrics(final), "train_wall_s": train_s}
 
     def run(self) -> dict[str, Any]:
+        """The whole run, holding the output directory (`lock.hold`) so that no second run works in it."""
+        with hold(self.out):
+            return self._run()
+
+    def _run(self) -> dict[str, Any]:
         start = time.time()
         self.out.mkdir(parents=True, exist_ok=True)
         self._check_settings()  # before anything is recorded or trained for settings it would refuse

@@ -47,6 +47,7 @@ from ..kvm.configuration import KvmConfig
 from ..kvm.supervisor import FEEDBACK_LR
 from ..policy.feedback import FOCUSED_LR, chunk_targets, skill_by_name
 from .continual import ContinualRun, SequenceConfig
+from .lock import hold
 from .resume import check_settings
 
 # Methods evaluated on the `coda_kvm` pool checkpoint, with the KVM settings that make them.
@@ -574,6 +575,11 @@ class Benchmark:
 
     # ------------------------------------------------------------------ everything
     def run(self) -> dict[str, Any]:
+        """The whole run, holding the output directory (`lock.hold`) so that no second run works in it."""
+        with hold(self.out):
+            return self._run()
+
+    def _run(self) -> dict[str, Any]:
         from . import metrics
         from .report import write_report
 

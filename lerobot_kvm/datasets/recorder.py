@@ -23,6 +23,7 @@ from ..envs.env import KvmObsolescenceEnv
 from ..envs.sensing import ACTION_NAMES, STATE_NAMES, context_names
 from .json_config import build, build_list, read_json
 from .labels import LABELS_FILE
+from .ownership import process_alive
 
 OUTCOMES = ("success", "failure", "catastrophe")
 LABEL_KEYS = ("label.skill", "label.scenario", "label.variant", "label.outcome")
@@ -160,20 +161,10 @@ def remove_stale_temporaries(root: Path) -> list[Path]:
     removed = []
     for tmp in root.parent.glob(f".{root.name}.tmp-*"):
         pid = tmp.name.rpartition("-")[2]
-        if tmp.is_dir() and pid.isdigit() and not _alive(int(pid)):
+        if tmp.is_dir() and pid.isdigit() and not process_alive(int(pid)):
             shutil.rmtree(tmp, ignore_errors=True)
             removed.append(tmp)
     return removed
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process
-        return True
-    return True
 
 
 def record_dataset(
