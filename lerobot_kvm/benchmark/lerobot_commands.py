@@ -17,6 +17,7 @@ from pathlib import Path
 
 POLL_S = 5.0  # how often a running command is checked
 LOADER_WORKERS = 1  # DataLoader workers of a single-process `lerobot-train`
+PR_SET_PDEATHSIG = 1  # prctl(2): the signal the calling process gets when its parent dies
 
 
 def available_cores() -> int:
@@ -60,7 +61,7 @@ def run_logged(
         return
     log.parent.mkdir(parents=True, exist_ok=True)
     with log.open("w") as handle:
-        proc = subprocess.Popen(list(cmd), stdout=handle, stderr=subprocess.STDOUT, start_new_session=True)
+        proc = subprocess.Popen(list(cmd), stdout=handle, stderr=subprocess.STDOUT, preexec_fn=_child_of_pipeline)
         try:
             returncode = _wait(proc, done, grace_s)
         except BaseException:
@@ -74,6 +75,17 @@ def run_logged(
     elif returncode:
         tail = "".join(log.read_text().splitlines(keepends=True)[-40:])
         raise RuntimeError(f"{program_name(cmd)} failed with exit code {returncode} (log: {log}):\n{tail}")
+
+
+def _child_of_pipeline() -> None:
+    """In the child, before it runs the command: its own session (so it can be stopped with its whole group), and
+    on Linux a SIGTERM when the pipeline dies, however it dies (SIGKILL included), so that no trainer outlives it
+    and races the next run into the same output directory."""
+    os.setsid()
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def _wait(proc: subprocess.Popen, done: Callable[[], bool] | None, grace_s: float) -> int | None:
