@@ -317,7 +317,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
                 self._action_queue.clear()
         if not self._action_queue:
             if pending is not None:
-                chunk, telemetry = self.decode(batch, pending[0], pending[1]), pending[2]
+                chunk, telemetry = self._finite(self.decode(batch, pending[0], pending[1]), batch), pending[2]
             else:
                 chunk, telemetry = self._infer(batch, skill_weights)
             self._action_queue.extend(chunk[:, : self.config.n_action_steps].transpose(0, 1))
@@ -410,7 +410,23 @@ class CodaKvmPolicy(PreTrainedPolicy):
     def _infer(self, batch: dict[str, Any], skill_weights: Tensor | None) -> tuple[Tensor, KvmStepTelemetry | None]:
         """One model call: `_plan`, then the fused prompt and the decoder (Algorithm 1, lines 21-22)."""
         alphas, weights, telemetry = self._plan(batch, skill_weights)
-        return self.decode(batch, alphas, weights), telemetry
+        return self._finite(self.decode(batch, alphas, weights), batch), telemetry
+
+    def _finite(self, chunk: Tensor, batch: dict[str, Any]) -> Tensor:
+        """`chunk`, or an error naming the rows and inputs: never a NaN action (a finite but huge input can
+        overflow the network)."""
+        broken = ~torch.isfinite(chunk).flatten(1).all(-1)
+        if bool(broken.any()):
+            rows = torch.nonzero(broken).flatten().tolist()
+            largest = {
+                key: float(batch[key][rows].abs().max())
+                for key in (*self.config.image_features, OBS_STATE, self.config.context_key)
+            }
+            raise ValueError(
+                f"the policy's action is not finite for batch rows {rows}: an input is out of the range it can "
+                f"compute with (largest |value| per input after normalisation: {largest})"
+            )
+        return chunk
 
     def decode(self, batch: dict[str, Any], alphas: Tensor, skill_weights: Tensor | None) -> Tensor:
         """Eq. 4: actions from the backbone prefixed by the fused prompt (component alphas [L, B, M])."""

@@ -339,3 +339,18 @@ def test_paired_ratio_cancels_a_drift_between_rotations() -> None:
     assert paired_ratio(closed, off) == pytest.approx(1.1)
     with pytest.raises(ValueError):
         paired_ratio(closed, off[:2])
+
+
+@pytest.mark.parametrize("assess_every_step", [False, True])
+def test_a_huge_finite_context_raises_instead_of_a_nan_action(
+    make_policy, make_kvm_config, make_batch, assess_every_step
+):
+    policy = make_policy(kvm=make_kvm_config(assess_every_step=assess_every_step))
+    policy.eval()
+    batch = make_batch(policy.config, batch_size=2, with_action=False)
+    policy.reset()
+    assert torch.isfinite(policy.select_action(batch)).all()  # (and a chunk queued for the next steps)
+    batch[CONTEXT][0, 0] = 1e30
+    policy.reset()
+    with pytest.raises(ValueError, match=r"not finite for batch rows \[0\].*observation.context"):
+        policy.select_action(batch)
