@@ -9,7 +9,14 @@ import json
 from pathlib import Path
 
 from ..envs.catalogue import resolve_tasks
-from ..evaluation.suite_check import MIN_PARTICLE_STEPS_PER_S, MIN_STEPS_PER_S, check_suite
+from ..evaluation.suite_check import (
+    MAX_FALSE_ALARM,
+    MIN_PARTICLE_STEPS_PER_S,
+    MIN_RESCUE,
+    MIN_STEPS_PER_S,
+    RESCUE_LATENCY,
+    check_suite,
+)
 from .table import results_table
 
 # (header, row key, format); rates are fractions of episodes
@@ -25,15 +32,29 @@ COLUMNS = (
     ("ctrl cat", "control_prior_skill_catastrophe", "{:.2f}"),
     ("img diff", "reset_image_diff", "{:.2f}"),
     ("steps/s", "env_steps_per_s", "{:.0f}"),
+    ("fa", "false_alarm", "{:.2f}"),
+    ("det", "detection_step", "{:.0f}"),
+    ("last", "last_rescue_step", "{:.0f}"),
+    ("harm", "harm_step", "{:.0f}"),
+    ("r0", "rescue_0", "{:.2f}"),
+    ("r2", "rescue_2", "{:.2f}"),
+    ("r5", "rescue_5", "{:.2f}"),
+    ("rescue", "rescue_rule", "{}"),
 )
 LEGEND = (
     "pp = prior skill on prior variant, ps = prior skill on shifted, ss = safe skill on shifted,\n"
-    "ctrl = prior skill on control; succ/cat = success/catastrophe rate over the episodes"
+    "ctrl = prior skill on control; succ/cat = success/catastrophe rate over the episodes;\n"
+    "fa = prior-variant runs whose context leaves the envelope; det / last / harm = median step of detection, of the\n"
+    "last takeover that still rescues, of the catastrophe (prior skill on shifted); rN = rescued with the safe expert\n"
+    f"taking over N steps after detection; rescue (A/B) = r{RESCUE_LATENCY} >= {MIN_RESCUE:.2f} at fa <= "
+    f"{MAX_FALSE_ALARM:.2f}"
 )
+RULE = {True: "pass", False: "fail", None: "-"}
 
 
 def format_table(report: dict) -> str:
-    return results_table(report["scenarios"], COLUMNS)
+    rows = [{**row, "rescue_rule": RULE[row["passes"]["rescue"]]} for row in report["scenarios"]]
+    return results_table(rows, COLUMNS)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -14,6 +14,16 @@ TOUCH_ON = 0.3  # N on a fingertip that counts as contact
 STROKE_STEP = 0.003  # m per control step along a stroke
 
 
+def touching(physics: Physics) -> bool:
+    """Either fingertip touches something: an earlier skill left the gripper on an object."""
+    return bool(physics.sensors.touch(physics.data).max() > TOUCH_ON)
+
+
+def wrist_pitch(physics: Physics) -> float:
+    """The wrist's sensed pitch: where an expert that turns it carries on from when it takes over."""
+    return float(physics.sensors.arm_position(physics.data)[3])
+
+
 class GraspLiftExpert(Expert):
     """Approach from above, descend, squeeze with a fixed grip command, lift, hold.
 
@@ -79,6 +89,15 @@ class GraspLiftExpert(Expert):
             self.anchor = self.after_grasp(physics, grasp_z)
             target = self.anchor
         return np.array([*target, 0.0, grip], dtype=np.float32)
+
+    def resume(self, physics: Physics) -> None:
+        """A fingertip on the object (held or being squeezed): keep it and squeeze with this skill's grip from where
+        the hand is, then lift as usual; the hand already over the object: descend from there; else approach."""
+        pos = physics.sensors.arm_position(physics.data)[:3]
+        if touching(physics):
+            self.phase, self.timer, self.anchor = "close", 0, pos.copy()
+        elif np.linalg.norm(physics.data.body(self.body).xpos[:2] - pos[:2]) < 0.004:
+            self.phase = "descend"
 
     def after_grasp(self, physics: Physics, grasp_z: float) -> np.ndarray:
         """Next hand position while the object is held: rise, then hold."""

@@ -33,6 +33,16 @@ class Expert(abc.ABC):
     @abc.abstractmethod
     def act(self, physics: Physics) -> np.ndarray: ...
 
+    def resume(self, physics: Physics) -> None:
+        """Take over a running episode from whatever state an earlier skill left, before the first `act`.
+
+        So that "another skill's expert takes over at step t" is well defined (DESIGN §5 rule 3). The default
+        infers nothing: experts whose first phase moves the hand from wherever it is need no more. Experts whose
+        skill can be met mid-interaction (an object held, a tool in contact, a wrist turned) override it to pick
+        their phase from the sensed state.
+        """
+        return
+
 
 class Scenario(abc.ABC):
     """A scenario's objects (`parts`), hidden variant (`reset`), judge (`evaluate`) and skills.
@@ -57,11 +67,15 @@ class Scenario(abc.ABC):
     def evaluate(self, physics: Physics) -> StepOutcome:
         """Judge the current physics state: success and/or a catastrophe (which ends the episode)."""
 
-    def expert(self, skill: str) -> Expert:
-        """A fresh expert for `skill` (one of `info.prior_skill`, `info.safe_skill`)."""
+    def expert(self, skill: str, takeover: Physics | None = None) -> Expert:
+        """An expert for `skill` (one of `info.prior_skill`, `info.safe_skill`): fresh, or with `takeover` the
+        running episode's physics, one that carries on from its present state (`Expert.resume`)."""
         if skill not in self.skills:
             raise ValueError(f"{self.info.id} has no skill {skill!r}; it has {sorted(self.skills)}")
-        return self.skills[skill](**self.expert_context())
+        expert = self.skills[skill](**self.expert_context())
+        if takeover is not None:
+            expert.resume(takeover)
+        return expert
 
     def expert_context(self) -> dict[str, Any]:
         """Keyword arguments every skill's expert is built with besides its own parameters: what the scenario

@@ -50,6 +50,10 @@ def test_check_suite_writes_a_complete_report(tmp_path):
     assert row["env_steps_per_s"] > 0
     assert set(row["passes"]) >= {"prior_on_prior", "prior_on_shifted", "safe_on_shifted", "reset_image_diff"}
     assert row["passes"]["control_prior_skill"] is None
+    rescue = {"false_alarm", "detected", "detection_step", "harm_step", "last_rescue_step", "rescue_0", "rescue_5"}
+    assert rescue <= set(row) and 0.0 <= row["false_alarm"] <= 1.0
+    assert row["passes"]["rescue"] is None  # the rescue rule is for hidden shifts (A/B); C only reports it
+    assert " r5 " in result.stdout.splitlines()[0] and "rescue" in result.stdout.splitlines()[0]
     assert row["passed"] == all(v for v in row["passes"].values() if v is not None)
 
 

@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
+from ..experts import touching
 from ..physics import Physics, geom_ids
 from ..scenario import Expert, Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts, scenario_parts, vector
@@ -76,6 +77,11 @@ class PullExpert(Expert):
         self.anchor = np.zeros(3)
         self.lift = 0.0
         self.stall = 0
+
+    def resume(self, physics: Physics) -> None:
+        """Fingers on the knob: grip it with this skill's force where the hand is, then pull from there."""
+        if touching(physics):
+            self.phase, self.timer, self.anchor = "close", 0, physics.sensors.arm_position(physics.data)[:3].copy()
 
     def act(self, physics: Physics) -> np.ndarray:
         d = physics.data

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
-from ..physics import Physics
+from ..physics import Physics, robot_geom_mask, robot_in_contact
 from ..scenario import Expert, Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts
 
@@ -73,13 +73,24 @@ class ScoopExpert(Expert):
         self.target: np.ndarray | None = None
         self._fz, self._free = 0, 0.0
 
+    def resume(self, physics: Physics) -> None:
+        """From where the scoop is: already in the ice cream, sink and drag with this skill's speed and push cap
+        (its second leg), counting the push from the wrist force at takeover; otherwise start with the hover."""
+        self.start_from(physics)
+        if robot_in_contact(physics.data, robot_geom_mask(physics.model)):
+            self.leg = 1
+
+    def start_from(self, physics: Physics) -> None:
+        """Take the hand's pose as the command to move on from and the wrist force now as the free-air one."""
+        self.target = physics.sensors.arm_position(physics.data)
+        self._fz = physics.model.sensor("wrist_force").adr[0] + 2
+        self._free = physics.data.sensordata[self._fz]  # wrist force with nothing touched
+
     def act(self, physics: Physics) -> np.ndarray:
         tub = physics.model.body("tub").pos
         pos = physics.sensors.arm_position(physics.data)
         if self.target is None:
-            self.target = pos.copy()
-            self._fz = physics.model.sensor("wrist_force").adr[0] + 2
-            self._free = physics.data.sensordata[self._fz]  # wrist force with nothing touched
+            self.start_from(physics)
         _, dx, dz, pitch, speed, turn, push = self.legs[self.leg]
         # Hand position that puts the bowl floor at the goal for the wrist's present pitch.
         off = np.array([BOWL_Z * np.sin(pos[3]), 0.0, BOWL_Z * np.cos(pos[3])])

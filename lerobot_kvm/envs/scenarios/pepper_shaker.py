@@ -22,6 +22,7 @@ import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
+from ..experts import wrist_pitch
 from ..physics import Physics
 from ..scenario import Expert, Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts
@@ -66,6 +67,11 @@ class ShakeExpert(Expert):
         self.shakes = 0
         self.out_before = 0
         self.back_from: float | None = None
+
+    def resume(self, physics: Physics) -> None:
+        """Carry on from the wrist's present tilt, counting pepper from what is already out; the wait for the hand
+        to settle over the plate is for the first move only."""
+        self.pitch, self.timer, self.out_before = wrist_pitch(physics), 7, self.scenario.count_out(physics.data)
 
     def act(self, physics: Physics) -> np.ndarray:
         sc = self.scenario

@@ -6,6 +6,9 @@ yield when raw, soft with a low elastic limit when cooked (MuJoCo elasto-plastic
 `springyield`). Squeezed past its elastic limit, the cooked flesh flows and stays dented
 (`data.plastic`): the crush is permanent deformation, not a force label. The pads compress
 more under the same grip when cooked, so the shift shows in the sensed finger width/velocity.
+Cooked flesh is also mushy (heavily damped): it gives way over several control steps, so a firm
+squeeze creeps in for about ten steps before the dent is deep enough to split the potato, and
+easing the grip soon after the creep shows still saves it (rule 3's rescue).
 """
 
 from functools import partial
@@ -27,11 +30,11 @@ PAD_Y = 0.024  # pad centre from the potato centre; its outer face is 3 mm insid
 PAD_TRAVEL = 0.014
 LIFT_HEIGHT = 0.05
 CRUSH_DEPTH = 0.003  # m of permanent dent in either pad
-# (mass kg, flesh stiffness N/m per pad, elastic limit m)
+# (mass kg, flesh stiffness N/m per pad, elastic limit m, flesh damping N s/m per pad)
 FLESH = {
-    "prior": (0.2, 15000.0, 0.010),  # raw: 150 N elastic limit, 2 mm under a 30 N squeeze
-    "control": (0.3, 15000.0, 0.010),  # a bigger raw potato: heavier, equally firm
-    "shifted": (0.2, 1500.0, 0.006),  # cooked: soft, flows above 9 N
+    "prior": (0.2, 15000.0, 0.010, 20.0),  # raw: 150 N elastic limit, 2 mm under a 30 N squeeze
+    "control": (0.3, 15000.0, 0.010, 20.0),  # a bigger raw potato: heavier, equally firm
+    "shifted": (0.2, 1500.0, 0.0065, 1200.0),  # cooked: soft, flows above 10 N, and gives way slowly (mushy)
 }
 
 
@@ -53,8 +56,10 @@ class Potato(GraspLiftScenario):
         self._bid = model.body("potato").id
         self._fingers = geom_ids(model, "finger_l", "finger_r")
         self._pads = geom_ids(model, "potato_pad_l", "potato_pad_r")
-        mass, stiffness, limit = FLESH[variant]
+        mass, stiffness, limit, damping = FLESH[variant]
         self._plastic = [yielding_spring(model, f"potato_flesh_{s}", stiffness, limit) for s in "lr"]
+        for side in "lr":
+            model.dof_damping[model.joint(f"potato_flesh_{side}").dofadr[0]] = damping
         pads_mass = 2 * model.body_mass[model.body("potato_pad_l").id]
         model.body_mass[self._bid] = mass - pads_mass
         rgb = SKIN_RGB + rng.uniform(-0.02, 0.02, 3)

@@ -22,6 +22,7 @@ import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
+from ..experts import wrist_pitch
 from ..physics import Physics
 from ..scenario import Expert, Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts
@@ -64,6 +65,11 @@ class TiltExpert(Expert):
         self.timer = 0
         self.pitch = 0.0
         self.shakes = 0
+
+    def resume(self, physics: Physics) -> None:
+        """Carry on from the wrist's present tilt (levelling it at once would fling toothpicks out); the wait for
+        the hand to settle over the saucer is for the first move only."""
+        self.pitch, self.timer = wrist_pitch(physics), 5
 
     def act(self, physics: Physics) -> np.ndarray:
         sc = self.scenario
