@@ -36,7 +36,7 @@ class Expert(abc.ABC):
     def resume(self, physics: Physics) -> None:
         """Take over a running episode from whatever state an earlier skill left, before the first `act`.
 
-        So that "another skill's expert takes over at step t" is well defined (DESIGN §5 rule 3). The default
+        So that "another skill's expert takes over at step t" is well defined (the suite's rescue rule). The default
         infers nothing: experts whose first phase moves the hand from wherever it is need no more. Experts whose
         skill can be met mid-interaction (an object held, a tool in contact, a wrist turned) override it to pick
         their phase from the sensed state.

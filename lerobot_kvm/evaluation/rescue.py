@@ -1,4 +1,4 @@
-"""When the shift shows, and whether a switch of skill then still helps (DESIGN §5 rule 3).
+"""When the shift shows, and whether a switch of skill then still helps (a hidden shift must show in time to act).
 
 The *envelope* is what the sensed context looks like when the prior skill runs on the prior variant: per control
 step and channel the min and max over prior-variant runs, widened in time by `window` steps either side (runs differ
