@@ -27,6 +27,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from ..datasets.check import check_dataset
 from ..datasets.json_config import build, build_list, read_json
 from ..datasets.labels import load_labels
 from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
@@ -387,6 +388,7 @@ class ContinualRun:
         if not self.dataset_root.exists():
             print(f"recording {self.dataset_root}")
             record_dataset(self.config.recording_spec(), self.dataset_root, repo_id=self.config.repo_id)
+        check_dataset(self.dataset_root)  # a damaged dataset is named here, not deep inside lerobot-train
         episodes = task_episodes(self.dataset_root, self.config.tasks)
         pretrain_episodes = task_episodes(self.dataset_root, self.config.pretrain_tasks)
         n_jobs = sum(

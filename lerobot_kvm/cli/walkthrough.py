@@ -13,6 +13,7 @@ from pathlib import Path
 
 from ..benchmark.lerobot_commands import eval_command, run_logged, train_command
 from ..benchmark.resume import check_settings, differences
+from ..datasets.check import check_dataset
 from ..datasets.labels import load_labels
 from ..datasets.recorder import RecordingSpec, record_dataset
 
@@ -48,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
         record_dataset(spec, dataset_root, repo_id=repo_id)
     else:
         check_recording(dataset_root, spec)
+        check_dataset(dataset_root)
         print(f"[1/3] reusing recorded dataset {dataset_root}")
 
     train_dir = out / "train"

@@ -1,0 +1,44 @@
+"""A dataset root checked before a run hands it to LeRobot, so that a fault names the file, not a traceback.
+
+LeRobot reads an empty or missing root as a hub repository to download (offline: "Cannot reach
+huggingface.co"), and a truncated `meta/info.json` or a corrupt parquet file as a long traceback from deep inside.
+"""
+
+import json
+from pathlib import Path
+
+import pyarrow.parquet as pq
+
+INFO = "meta/info.json"
+
+
+def check_dataset(root: str | Path, required: tuple[str, ...] = ("action", "observation.state")) -> dict:
+    """The dataset's `meta/info.json`, after checking the root, that file, every parquet file and `required`
+    features; a ValueError names the first fault found."""
+    root = Path(root)
+    if not root.is_dir():
+        raise ValueError(f"dataset root {root} does not exist or is not a directory")
+    if not any(root.iterdir()):
+        raise ValueError(f"dataset root {root} is empty")
+    info_path = root / INFO
+    try:
+        info = json.loads(info_path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{info_path} is missing: {root} is not a LeRobot dataset") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ValueError(f"{info_path} is not readable JSON ({err})") from None
+    features = info.get("features") if isinstance(info, dict) else None
+    if not isinstance(features, dict):
+        raise ValueError(f"{info_path} has no 'features' table")
+    missing = [name for name in required if name not in features]
+    if missing:
+        raise ValueError(f"{root} lacks the features {missing}; it has {sorted(features)}")
+    files = sorted((root / "data").rglob("*.parquet"))
+    if not files:
+        raise ValueError(f"{root / 'data'} holds no parquet file: the dataset has no frames")
+    for path in [*files, *sorted((root / "meta").rglob("*.parquet"))]:
+        try:
+            pq.read_metadata(path)
+        except Exception as err:  # pyarrow raises several kinds for a damaged file
+            raise ValueError(f"{path} is not a readable parquet file ({err})") from None
+    return info
