@@ -4,10 +4,11 @@ LeRobot reads an empty or missing root as a hub repository to download (offline:
 huggingface.co"), and a truncated `meta/info.json` or a corrupt parquet file as a long traceback from deep inside.
 """
 
-import json
 from pathlib import Path
 
 import pyarrow.parquet as pq
+
+from .json_config import read_json
 
 INFO = "meta/info.json"
 
@@ -22,12 +23,10 @@ def check_dataset(root: str | Path, required: tuple[str, ...] = ("action", "obse
         raise ValueError(f"dataset root {root} is empty")
     info_path = root / INFO
     try:
-        info = json.loads(info_path.read_text())
+        info = read_json(info_path)
     except FileNotFoundError:
         raise ValueError(f"{info_path} is missing: {root} is not a LeRobot dataset") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise ValueError(f"{info_path} is not readable JSON ({err})") from None
-    features = info.get("features") if isinstance(info, dict) else None
+    features = info.get("features")
     if not isinstance(features, dict):
         raise ValueError(f"{info_path} has no 'features' table")
     missing = [name for name in required if name not in features]

@@ -37,7 +37,7 @@ def test_missing_and_empty_roots_are_named(tmp_path):
 def test_a_truncated_info_file_is_named(dataset):
     info = dataset / "meta" / "info.json"
     info.write_text(info.read_text()[:40])
-    with pytest.raises(ValueError, match=r"meta/info.json is not readable JSON"):
+    with pytest.raises(ValueError, match=r"meta/info.json: not a readable JSON file"):
         check_dataset(dataset)
 
 
