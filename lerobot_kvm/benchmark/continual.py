@@ -383,7 +383,6 @@ class ContinualRun:
 
     def _run(self) -> dict[str, Any]:
         start = time.time()
-        self.out.mkdir(parents=True, exist_ok=True)
         self._check_settings()  # before anything is recorded or trained for settings it would refuse
         if not self.dataset_root.exists():
             print(f"recording {self.dataset_root}")

@@ -584,7 +584,6 @@ class Benchmark:
         from .report import write_report
 
         start = time.time()
-        self.out.mkdir(parents=True, exist_ok=True)
         kept = {k: v for k, v in asdict(self.config).items() if k not in FREE_SETTINGS} | {"device": self.device}
         check_settings(self.out, kept, "a benchmark's episodes and overhead")  # its timings name one device
         pool_results, checkpoints = self.grow_pool()

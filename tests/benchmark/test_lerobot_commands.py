@@ -86,8 +86,12 @@ def test_a_failing_command_raises_with_its_log_tail(tmp_path):
         run_logged([sys.executable, "-c", "print('boom'); raise SystemExit(3)"], log, done=lambda: False)
 
 
-def test_a_terminated_pipeline_stops_the_command_it_started(tmp_path):
-    """`kill` of `lerobot-kvm` reaches the lerobot-train it runs, although that runs in a session of its own."""
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGKILL])
+def test_a_killed_pipeline_stops_the_command_it_started(tmp_path, stop):
+    """`kill` of `lerobot-kvm` reaches the lerobot-train it runs, although that runs in a session of its own: a
+    SIGTERM through the pipeline's handler, a SIGKILL (no handler runs) through the child's parent-death signal."""
+    if stop == signal.SIGKILL and not sys.platform.startswith("linux"):
+        pytest.skip("the parent-death signal is Linux's")
     child = tmp_path / "child.pid"
     sleeper = f"import os, pathlib, time; pathlib.Path({str(child)!r}).write_text(str(os.getpid())); time.sleep(600)"
     pipeline = (
@@ -102,10 +106,10 @@ def test_a_terminated_pipeline_stops_the_command_it_started(tmp_path):
     while not child.exists() or not child.read_text():
         assert proc.poll() is None and time.monotonic() < deadline
         time.sleep(0.1)
-    proc.terminate()
-    assert proc.wait(timeout=60) == 128 + signal.SIGTERM
+    proc.send_signal(stop)
+    assert proc.wait(timeout=60) == (128 + signal.SIGTERM if stop == signal.SIGTERM else -signal.SIGKILL)
     pid = int(child.read_text())
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + 30
     while _alive(pid) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not _alive(pid)
