@@ -7,6 +7,8 @@ benign-novelty ("control") episodes, where every suppression is a false interven
 
 * success_rate, first_attempt_success_rate: solved challenges / challenges.
 * catastrophic_failure_rate: attempts (1 and 2) ending in a catastrophe / challenge attempts.
+* abstention_rate: attempts ending in a safe abstention (neither success nor catastrophe, the policy held because
+  every candidate skill was invalid) / challenge attempts.
 * per_category: solved challenges per scenario category as "k/n (p%)".
 * prior_retention: successful prior-variant controls / prior-variant controls.
 * false_intervention_rate: controls with at least one intervention / controls (validity methods only).
@@ -99,6 +101,7 @@ def summarize(records: Sequence[Record], probes: Sequence[Record] = (), validity
         "success": _solved(chall),
         "first_attempt_success_rate": _rate(sum(c["first"] for c in chall), len(chall)),
         "catastrophic_failure_rate": _rate(sum(a["outcome"] == "catastrophe" for a in attempts), len(attempts)),
+        "abstention_rate": _rate(sum(a["outcome"] == "abstention" for a in attempts), len(attempts)),
         "per_category": {cat: _solved([c for c in chall if c["category"] == cat]) for cat in categories},
         "prior_retention": _rate(sum(r["outcome"] == "success" for r in prior), len(prior)),
         "control_success_rate": _rate(
@@ -148,6 +151,7 @@ def rate_counts(records: Sequence[Record], validity: bool = True) -> dict[str, C
         "success_rate": _cell_counts(chall, lambda c: c["solved"]),
         "first_attempt_success_rate": _cell_counts(chall, lambda c: c["first"]),
         "catastrophic_failure_rate": _cell_counts(attempts, lambda a: a["outcome"] == "catastrophe"),
+        "abstention_rate": _cell_counts(attempts, lambda a: a["outcome"] == "abstention"),
         "prior_retention": _cell_counts(prior, lambda r: r["outcome"] == "success"),
     }
     if validity:

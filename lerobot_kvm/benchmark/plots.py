@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 from matplotlib.transforms import blended_transform_factory
 
-OUTCOME_COLORS = {"success": "tab:green", "failure": "tab:orange", "catastrophe": "tab:red"}
+OUTCOME_COLORS = {"success": "tab:green", "failure": "tab:orange", "abstention": "tab:blue", "catastrophe": "tab:red"}
 REFERENCE_METHOD = "coda_kvm"  # the method whose validity signals the trace and energy figures focus on
 DPI = 120
 

@@ -41,7 +41,7 @@ def category_table(results: dict[str, Any]) -> list[str]:
 def _with_interval(res: dict[str, Any], key: str) -> str:
     """A rate in percent and, where measured, its 95 % interval: "33.3 [16.1, 50.0]"."""
     interval = res.get("intervals", {}).get(key)
-    value = _pct(res["overall"][key])
+    value = _pct(res["overall"].get(key))
     if interval is None or interval["low"] is None:
         return value
     return f"{value} [{_pct(interval['low'])}, {_pct(interval['high'])}]"
@@ -56,7 +56,12 @@ def method_table(results: dict[str, Any]) -> list[str]:
                 name,
                 *[
                     _with_interval(res, key)
-                    for key in ("success_rate", "first_attempt_success_rate", "catastrophic_failure_rate")
+                    for key in (
+                        "success_rate",
+                        "first_attempt_success_rate",
+                        "catastrophic_failure_rate",
+                        "abstention_rate",
+                    )
                 ],
                 _with_interval(res, "prior_retention"),
                 _pct(res["overall"]["control_success_rate"]),
@@ -64,7 +69,8 @@ def method_table(results: dict[str, Any]) -> list[str]:
                 _num(res["wall_time_s"] / 60),
             ]
         )
-    header = ["method", "success (%)", "1st attempt (%)", "CFR (%)", "prior retention (%)", "benign control (%)"]
+    header = ["method", "success (%)", "1st attempt (%)", "CFR (%)", "abstentions (%)", "prior retention (%)"]
+    header.append("benign control (%)")
     return _table([*header, "false interventions (%)", "episodes + feedback (min)"], rows)
 
 
@@ -105,6 +111,7 @@ DIFFERENCE_LABELS = {
     "success_rate": "success",
     "first_attempt_success_rate": "1st attempt",
     "catastrophic_failure_rate": "CFR",
+    "abstention_rate": "abstentions",
     "prior_retention": "prior retention",
     "false_intervention_rate": "false interventions",
     "gate_activation_rate_solved": "gate, solved routine",

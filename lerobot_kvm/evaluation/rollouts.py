@@ -54,10 +54,15 @@ def observation_batch(observation: dict[str, Any], task: str) -> dict[str, Any]:
     return batch
 
 
-def outcome_of(info: dict[str, Any]) -> str:
+def outcome_of(info: dict[str, Any], trace: Any = None) -> str:
+    """ "catastrophe", "success", "abstention" (neither, and the policy abstained safely at some step: every
+    candidate skill was found invalid) or "failure"."""
     if info.get("catastrophe"):
         return "catastrophe"
-    return "success" if info.get("is_success") else "failure"
+    if info.get("is_success"):
+        return "success"
+    abstained = trace is not None and len(trace) and trace.summary()["abstention_steps"] > 0
+    return "abstention" if abstained else "failure"
 
 
 @torch.no_grad()
@@ -86,11 +91,12 @@ def run_attempt(
         obs, _, terminated, truncated, info = env.step(action[0].cpu().numpy())
         if terminated or truncated:
             break
+    trace = policy.kvm_trace() if hasattr(policy, "kvm_trace") else None
     return {
-        "outcome": outcome_of(info),
+        "outcome": outcome_of(info, trace),
         "steps": steps,
         "catastrophe_kind": info.get("catastrophe_kind", ""),
-        "trace": policy.kvm_trace() if hasattr(policy, "kvm_trace") else None,
+        "trace": trace,
     }
 
 

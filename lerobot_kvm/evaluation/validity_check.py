@@ -96,7 +96,6 @@ def _small_policy(root: Path, repo_id: str, skill_name: str, kvm_options: dict[s
         dim_feedforward=64,
         vision_channels=[8, 8, 8, 8],
         prompt_layers=1,
-        query_separation_weight=1.0,  # as the benchmark's pools learn their skills
     )
     # forward() trains the CL core; the KVM learns through `pretrain_kvm`
     config.kvm = replace(config.kvm, learn_offline=False, **kvm_options)

@@ -37,14 +37,6 @@ class KvmConfig:
     gate_window: int = 1000  # eq. 1, App. E: N = 1000 successful interactions (control steps)
     gate_min_count: int = 32  # eq. 1 needs statistics: with fewer safe interactions the gate stays open
 
-    # ------------------------------------------------------------------ fusion (eq. 3)
-    # eq. 3's normalisation: w_i = v_i * S / sum_j v_j |alpha_j|, S = sum_j |alpha_j|. Off by default: CODA trains
-    # skill k with the prompt sum_{i<=k} c_i, and renormalising rescales it to a magnitude never trained
-    # (docs/measurements.md).
-    fusion_renormalize: bool = False
-    fusion_eps: float = 1e-3  # eq. 3's eps: the renormalisation factor never exceeds 1 / fusion_eps
-    candidate_min_alpha: float = 0.2  # Algorithm 1: a skill is a candidate (P_cand) at normalised relevance >= this
-
     # ------------------------------------------------------------------ offline learning inside forward() (§3.3)
     learn_offline: bool = True  # §3.3 offline; the benchmark's baselines fine-tune the action loss alone (False)
     synthetic_negatives: bool = True  # §3.3 h_fail: off-manifold perturbations of safe contexts as negatives
@@ -79,7 +71,6 @@ class KvmConfig:
 
     # ------------------------------------------------------------------ telemetry (Algorithm 1: decisions observable)
     trace_capacity: int = 2000  # Algorithm 1's trace: control steps kept per attempt for the feedback
-    assess_every_step: bool = False  # Algorithm 1 per step: assess every call and replan when a suppression starts
 
     def __post_init__(self) -> None:
         if self.risk_model not in RISK_MODELS:
@@ -117,8 +108,6 @@ class KvmConfig:
             value = getattr(self, name)
             if not value or any(not isinstance(v, int) or v <= 0 for v in value):
                 raise ValueError(f"`kvm.{name}` must be a non-empty list of positive ints, got {value!r}")
-        if not self.fusion_eps > 0:
-            raise ValueError(f"`kvm.fusion_eps` must be > 0, got {self.fusion_eps!r}")
         if not self.gate_k >= 0:
             raise ValueError(f"`kvm.gate_k` must be >= 0, got {self.gate_k!r}")
         for name in ("tau_high", "similarity"):

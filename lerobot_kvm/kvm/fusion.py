@@ -1,19 +1,11 @@
-"""Decision weights and the fused prompt (eqs. 3-4) on the CODA-Prompt core.
+"""Decision weights and the fused prompt's candidates (eq. 3), the suppression threshold, and corrections.
 
-The paper fuses P_fused = sum_i w_i P_i / (sum_i w_i + eps) with w_i = v_i * alpha_i. The CODA prompt is the
-*unnormalised* sum sum_i c_i of the skills' contributions c_i = sum_{m in i} alpha_m P_m (alpha_m signed cosines,
-no softmax), so eq. 3 is applied as a re-weighting of those contributions that is the identity at v = 1 (a skill's
-relevance alpha_i is the size ||c_i|| of its contribution, see `CodaPromptPool.skill_relevance`):
-
-* default (`renormalize=False`): skill weights s_i = v_i, i.e. P_fused = sum_i v_i c_i and each component's
-  alpha_m of skill i becomes v_i * alpha_m (w_i = v_i * alpha_i). A suppressed skill's contribution vanishes and
-  the others keep exactly the magnitude they were trained with (CODA trains skill k under sum_{i<=k} c_i, so
-  suppressing later skills restores an earlier skill's training prompt exactly).
-* `renormalize=True`: eq. 3's normalisation carried over, s_i = v_i * S / max(sum_j v_j alpha_j, eps * S) with
-  S = sum_j alpha_j: the suppressed relevance mass goes to the remaining skills (the factor is S / S = 1.0
-  exactly at v = 1, and at most 1 / eps).
-
-Either way, at v = 1 the prompt is the CODA prompt bit for bit.
+The paper fuses P_fused = sum_i w_i P_i / (sum_i w_i + eps) over the candidate skills P_cand, with w_i = v_i * alpha_i
+(`decision_weights`; the pool applies the normalisation, `CodaPromptPool.prompt_from_alphas`): a suppressed skill's
+share goes to the remaining valid candidates. The CL core proposes the candidates (`candidates`): the skills whose
+relevance is at least `CANDIDATE_SHARE` of the best one's. With every v_i = 1 (the gate closed, or the KVM off)
+the weights are the relevances alone. When every candidate is suppressed (v_i < tau_v) there is nothing valid to
+fuse and the policy abstains (`abstains`).
 
 A skill the KVM created for a knowledge gap *corrects* another skill: it is out of force where the gate is closed
 (inside the safe experience the corrected skill still holds) and, where the gate is open, valid at least as much as
@@ -24,16 +16,28 @@ knowledge is suppressed, however narrow the few seed contexts it was learned fro
 import torch
 from torch import Tensor
 
+TAU_V = 0.1  # App. E: v below tau_v is a suppression ("intervention"); also eq. 8's threshold
+# Algorithm 1 line 5, P_cand: a skill is a candidate at relevance >= this share of the best skill's. With the pool's
+# relevance temperature (0.05) that is a query cosine at most 0.23 below the best skill's: one scenario's other
+# strategies (0.07-0.18 below) are candidates, other scenarios' skills (0.4 below or more) are not.
+CANDIDATE_SHARE = 0.01
 
-def fuse_weights(v: Tensor, alphas: Tensor, renormalize: bool = False, eps: float = 1e-3) -> Tensor:
-    """Skill weights [B, S] for the CODA pool from validity v [B, S] and per-skill relevance alpha [B, S]."""
-    if not renormalize:
-        return v
-    mass = alphas.abs()
-    total = mass.sum(-1, keepdim=True)
-    kept = (v * mass).sum(-1, keepdim=True)
-    factor = torch.where(total > 0, total / torch.maximum(kept, eps * total), torch.ones_like(total))
-    return v * factor
+
+def candidates(alphas: Tensor, active: Tensor) -> Tensor:
+    """[B, S] bool: skills the CL core proposes for these rows (active, relevance alpha [B, S] at least
+    `CANDIDATE_SHARE` of the row's best active skill)."""
+    mass = alphas * active.to(alphas)
+    return active.unsqueeze(0) & (mass >= CANDIDATE_SHARE * mass.amax(-1, keepdim=True)) & (mass > 0)
+
+
+def decision_weights(v: Tensor, alphas: Tensor, candidate: Tensor) -> Tensor:
+    """Eq. 3's w_i = v_i * alpha_i [B, S] over the candidates (0 elsewhere)."""
+    return torch.where(candidate, v * alphas, torch.zeros_like(alphas))
+
+
+def abstains(v: Tensor, weights: Tensor, candidate: Tensor) -> Tensor:
+    """[B] bool: no candidate in force is valid (every one suppressed, v_i < tau_v, or weighted 0): abstain."""
+    return ~(candidate & (v >= TAU_V) & (weights > 0)).any(-1)
 
 
 def plain_scale(alphas: Tensor, correcting: Tensor) -> Tensor:

@@ -9,7 +9,7 @@ update of the feedback API (driven by `policy.feedback`).
 """
 
 import sys
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 
 import torch
 from torch import Tensor, nn
@@ -19,7 +19,7 @@ from .configuration import KvmConfig
 from .context_encoder import ContextEncoder
 from .energy import ENERGY_MAX, GAMMA, L0, EnergyModel, JointFeature, RiskClassifier, SkillScorer, validity
 from .experience import SafeExperience
-from .fusion import correction_validity, fuse_weights
+from .fusion import candidates, correction_validity, decision_weights
 from .gate import SmartGate
 from .losses import (
     BCE_WEIGHT,
@@ -244,18 +244,17 @@ class KnowledgeValidityModule(nn.Module):
         self,
         sensed: Tensor,
         query: Tensor | None,
-        alphas: Tensor | Callable[[], Tensor],
+        alphas: Tensor,
         active: Tensor,
         all_active: bool | None = None,
         corrections: tuple[Tensor, Tensor] | None = None,
-    ) -> tuple[Tensor | None, KvmStepTelemetry]:
-        """Skill weights for the pool and the step's telemetry (Algorithm 1, lines 7-21).
+    ) -> tuple[Tensor, KvmStepTelemetry]:
+        """Eq. 3's decision weights w [B, S] for the pool and the step's telemetry (Algorithm 1, lines 5-20).
 
-        sensed [B, C] normalized context, query [B, D_q], alphas [B, S] per-skill relevance (or a function giving
-        it), active [S] bool (not pruned), corrections: knowledge-gap skills (`CodaPromptPool.corrections`).
-        The weights are None when nothing is re-weighted (the gate closed everywhere, every context valid, every
-        skill in force): the pool then computes the plain CODA prompt. The gate-closed path costs E_c and the
-        gate test only.
+        sensed [B, C] normalized context, query [B, D_q], alphas [B, S] the CL core's per-skill relevance, active
+        [S] bool (not pruned), corrections: knowledge-gap skills (`CodaPromptPool.corrections`). Where the gate is
+        closed every v is 1 and w is the relevance over the candidates; the gate-closed path costs E_c and the gate
+        test only. `telemetry.abstained` marks rows where every candidate is suppressed.
         """
         cfg = self.config
         self.gate.ensure_fresh(self.encoder, self.gate_memory)
@@ -276,20 +275,15 @@ class KnowledgeValidityModule(nn.Module):
             gate = self.gate_open(sigma2)
         if all_active is None:
             all_active = bool(active.all())
-        common = dict(
-            sigma2=sigma2,
-            tau=tau,
-            gate=gate,
-            active=active,
-            candidate_min_alpha=cfg.candidate_min_alpha,
-        )
+        candidate = candidates(alphas, active)
+        common = dict(sigma2=sigma2, tau=tau, gate=gate, alpha=alphas, active=active)
         anywhere, everywhere = _spread(gate)
-        if cfg.force_validity is None and not anywhere:  # closed: v = 1 for every skill
-            if all_active and corrections is None:
-                return None, KvmStepTelemetry(alpha=alphas, **common)  # the plain CODA prompt
+        if cfg.force_validity is None and not anywhere:  # closed: v = 1 for every skill in force
             v = active.to(sigma2.dtype).expand(sigma2.shape[0], -1)
-            weights = v if corrections is None else v.masked_fill(corrections[0], 0.0)
-            return weights, KvmStepTelemetry(alpha=alphas, validity=v, skill_weight=weights, **common)
+            weights = decision_weights(v, alphas, candidate)
+            if corrections is not None:
+                weights = weights.masked_fill(corrections[0], 0.0)
+            return weights, KvmStepTelemetry(validity=v, skill_weight=weights, **common)
         if gate is None:
             gate = common["gate"] = torch.zeros_like(sigma2, dtype=torch.bool)
         valid = None if _at_most(sigma2, _FINITE_MAX) else torch.isfinite(sigma2).unsqueeze(-1)  # None: all rows
@@ -311,19 +305,11 @@ class KnowledgeValidityModule(nn.Module):
         off = invalid if all_active else invalid | ~active.unsqueeze(0)
         v = v.masked_fill(off, 0.0)
         if corrections is not None:
-            alphas = alphas() if callable(alphas) else alphas
             v = torch.where(off, 0.0, correction_validity(v, corrections, alphas, cfg.tau_high, active))
-        # The default fusion scales each skill by v alone, so the relevance stays lazy (telemetry may ask for it).
-        if cfg.fusion_renormalize:
-            alphas = alphas() if callable(alphas) else alphas
-            weights = fuse_weights(v, alphas, True, cfg.fusion_eps)
-        else:
-            weights = v
+        weights = decision_weights(v, alphas, candidate)
         if corrections is not None:
             weights = weights.masked_fill(corrections[0].unsqueeze(0) & ~gate.unsqueeze(-1), 0.0)
-        telemetry = KvmStepTelemetry(
-            alpha=alphas, energy=energy, validity=v, skill_weight=weights, invalid=invalid, **common
-        )
+        telemetry = KvmStepTelemetry(energy=energy, validity=v, skill_weight=weights, invalid=invalid, **common)
         return weights, telemetry
 
     # ----------------------------------------------------------------- learning

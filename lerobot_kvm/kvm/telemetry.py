@@ -11,8 +11,7 @@ import torch
 from torch import Tensor
 
 from .attribution import normalised_relevance
-
-TAU_V = 0.1  # App. E: v below tau_v is a suppression ("intervention"); also eq. 8's threshold
+from .fusion import TAU_V, abstains, candidates, decision_weights
 
 
 class KvmStepTelemetry:
@@ -20,11 +19,11 @@ class KvmStepTelemetry:
     invalid) and the relevances are materialised only when read, so the control loop pays for what callers use.
 
     sigma2 [B]: sigma_c^2, what the gate compares; tau []: tau_adaptive (eq. 1), -inf while there are no statistics;
-    gate [B] bool: full assessment ran; alpha [B, S]: per-skill relevance alpha_i = ||c_i||; energy [B, S]:
+    gate [B] bool: full assessment ran; alpha [B, S]: the CL core's per-skill relevance alpha_i; energy [B, S]:
     E_theta(h_i) (or the classifier's energy-equivalent), NaN where not assessed; validity [B, S]: v_i (1 where the
-    gate was closed, 0 where invalid or pruned); skill_weight [B, S]: weight given to the pool (see kvm.fusion);
-    invalid [B, S] bool: non-finite context, code or energy -> v_i = 0 (fail-safe); active [S] bool: skills not
-    pruned.
+    gate was closed, 0 where invalid or pruned); skill_weight [B, S]: eq. 3's decision weight w_i given to the pool
+    (see kvm.fusion); invalid [B, S] bool: non-finite context, code or energy -> v_i = 0 (fail-safe); active [S]
+    bool: skills not pruned.
     """
 
     FIELDS = ("sigma2", "tau", "gate", "alpha", "energy", "validity", "skill_weight", "invalid")
@@ -41,7 +40,6 @@ class KvmStepTelemetry:
         validity: Tensor | None = None,
         skill_weight: Tensor | None = None,
         invalid: Tensor | None = None,
-        candidate_min_alpha: float = 0.2,
     ) -> None:
         self.sigma2 = sigma2
         self.tau = tau
@@ -52,7 +50,6 @@ class KvmStepTelemetry:
         self._validity = validity
         self._skill_weight = skill_weight
         self._invalid = invalid
-        self.candidate_min_alpha = candidate_min_alpha
 
     @property
     def alpha(self) -> Tensor:
@@ -81,7 +78,7 @@ class KvmStepTelemetry:
     @property
     def skill_weight(self) -> Tensor:
         if self._skill_weight is None:
-            self._skill_weight = torch.ones_like(self.alpha)
+            self._skill_weight = decision_weights(self.validity, self.alpha, self.candidate)
         return self._skill_weight
 
     @property
@@ -98,8 +95,8 @@ class KvmStepTelemetry:
 
     @property
     def candidate(self) -> Tensor:
-        """[B, S] bool: proposed by the CL core (active, normalised relevance >= candidate_min_alpha)."""
-        return self.active.unsqueeze(0) & (self.relevance >= self.candidate_min_alpha)
+        """[B, S] bool: proposed by the CL core (see `fusion.candidates`)."""
+        return candidates(self.alpha, self.active)
 
     @property
     def intervention(self) -> Tensor:
@@ -107,9 +104,9 @@ class KvmStepTelemetry:
         return self.candidate & (self.validity < TAU_V)
 
     @property
-    def decision_weight(self) -> Tensor:
-        """[B, S] w_i = v_i * alpha_i."""
-        return self.validity * self.alpha
+    def abstained(self) -> Tensor:
+        """[B] bool: every candidate suppressed; the policy held instead of acting (see `fusion.abstains`)."""
+        return abstains(self.validity, self.skill_weight, self.candidate)
 
     @property
     def batch_size(self) -> int:
@@ -133,9 +130,9 @@ class KvmStepTelemetry:
             "candidate": plain(self.candidate[b]),
             "energy": plain(self.energy[b]),
             "validity": plain(self.validity[b]),
-            "decision_weight": plain(self.decision_weight[b]),
             "skill_weight": plain(self.skill_weight[b]),
             "intervention": plain(self.intervention[b]),
+            "abstained": bool(self.abstained[b]),
             "invalid": plain(self.invalid[b]),
         }
 
@@ -145,7 +142,6 @@ class KvmStepTelemetry:
         return KvmStepTelemetry(
             tau=self.tau,
             active=self.active,
-            candidate_min_alpha=self.candidate_min_alpha,
             **{k: v[b : b + 1] for k, v in values.items()},
         )
 
@@ -198,4 +194,5 @@ class KvmTrace:
             "gate_open_steps": sum(int(t.gate[0]) for t in assessed),
             "intervention_steps": sum(int(t.intervention[0].any()) for t in assessed),
             "invalid_steps": sum(int(t.invalid[0].any()) for t in assessed),
+            "abstention_steps": sum(int(t.abstained[0]) for t in assessed),
         }

@@ -1,23 +1,22 @@
-"""CODA-Prompt component pool with task-incremental growth, organised into skills.
+"""CODA-Prompt component pool with task-incremental growth, organised into skills that each work alone.
 
-Faithful to the official CODA-Prompt algorithm (Smith et al., CVPR 2023): per prompted layer, components
-P [M, Lp, D], keys K [M, Dq] and attention vectors A [M, Dq]; alpha_m = cos(q * A_m, K_m) without softmax;
-the layer prompt is sum_m alpha_m P_m over the components of the tasks begun so far; a new task's rows are
-re-initialised by Gram-Schmidt against all earlier rows.
+Faithful to the official CODA-Prompt algorithm (Smith et al., CVPR 2023) inside a skill: per prompted layer,
+components P [M, Lp, D], keys K [M, Dq] and attention vectors A [M, Dq]; alpha_m = cos(q * A_m, K_m) without
+softmax; a new task's rows are re-initialised by Gram-Schmidt against all earlier rows.
+
+Skills (the components one task owns) are the knowledge units the KVM weights, and each one works alone: skill i's
+prompt is P_i = sum_{m in i} alpha_m P_m, and it is trained under that prompt only, not as a residual on the skills
+before it. The pool fuses them as the paper's eq. 3 writes it, P = sum_i w_i P_i / (sum_i w_i + eps): a skill
+whose weight falls hands its share to the others. The CL core's relevance alpha_i (the w of the KVM-off policy)
+says how close the query is to the queries skill i was trained on (`skill_relevance`).
 
 Differences that fix pitfalls of the official code:
 * each task's slice is its own set of `nn.Parameter`s, so earlier tasks are frozen by `requires_grad=False`
   and never receive a gradient, weight decay or momentum: they stay bit-identical;
-* the task counter and the skill table (names, descriptions) are persistent buffers in the state dict;
-* optional query separation (not in CODA-Prompt): each skill keeps the mean of its training queries (one
-  query_dim vector, no data), and a new skill's components can be trained to give those earlier queries
-  zero relevance, so that learning a task does not change the prompt earlier tasks receive;
+* the task counter, the skill table (names, descriptions) and each skill's query prototypes are persistent
+  buffers in the state dict;
 * new rows are made orthogonal to the span of all earlier rows (earlier rows are first orthonormalised,
   since trained rows are no longer mutually orthogonal).
-
-The components owned by one task form a *skill*. Per-skill prompt contributions c_i and their sizes (the
-skill's relevance) are exposed so the KVM can weight skills (eq. 3): with every weight 1 the fused prompt is
-the CODA prompt.
 """
 
 import json
@@ -28,6 +27,18 @@ import torch.nn.functional as F  # noqa: N812
 from torch import Tensor, nn
 
 SKILL_TABLE_BYTES_PER_TASK = 1024
+# Distinct training queries (task strings) a skill keeps as prototypes of what it was trained on; more fold into
+# the nearest. The full sequence's pretraining skill learns 10 instructions.
+PROTOTYPES_PER_SKILL = 16
+# Two queries closer than this (cosine) are one prototype: the same task string, up to float noise.
+SAME_QUERY = 1.0 - 1e-4
+# Relevance alpha_i = exp((s_i - 1) / RELEVANCE_TEMPERATURE), s_i the query's best cosine with skill i's prototypes.
+# Measured with all-MiniLM-L6-v2 on the catalogue's instructions: one scenario's variant, prior-skill and safe-skill
+# instructions have cosines 0.82-0.93, instructions of different scenarios at most 0.60. At 0.05 a skill trained
+# on the very instruction has alpha 1, the same scenario's other strategies 0.03-0.3, other scenarios < 4e-4.
+RELEVANCE_TEMPERATURE = 0.05
+# eq. 3's eps: negligible against any weight a candidate carries (alpha >= exp(-1 / 0.05) ~ 2e-9 only in theory).
+FUSION_EPS = 1e-12
 
 
 @dataclass(frozen=True)
@@ -112,8 +123,8 @@ class CodaPromptPool(nn.Module):
         )
         self.register_buffer("task_count", torch.zeros(1, dtype=torch.int64))
         self.register_buffer("skill_table", torch.zeros(SKILL_TABLE_BYTES_PER_TASK * n_tasks, dtype=torch.uint8))
-        self.register_buffer("skill_queries", torch.zeros(n_tasks, query_dim))
-        self.register_buffer("skill_query_counts", torch.zeros(n_tasks, dtype=torch.int64))
+        self.register_buffer("prototypes", torch.zeros(n_tasks, PROTOTYPES_PER_SKILL, query_dim))
+        self.register_buffer("prototype_counts", torch.zeros(n_tasks, PROTOTYPES_PER_SKILL, dtype=torch.int64))
         self.register_load_state_dict_post_hook(CodaPromptPool._after_load)
         self._corrections: tuple[int, torch.device, tuple[Tensor, Tensor] | None] | None = None
         self.refresh_trainable()
@@ -196,14 +207,6 @@ class CodaPromptPool(nn.Module):
         self.refresh_trainable()
         return t
 
-    @torch.no_grad()
-    def copy_skill(self, source: int, target: int) -> None:
-        """Start the skill being learned (`target`) as a copy of skill `source`'s components, keys and attention."""
-        if target != self.n_skills - 1 or not 0 <= source < target:
-            raise ValueError(f"can only copy an earlier skill into the one being learned, got {source} -> {target}")
-        for attr in ("prompts", "keys", "attn"):
-            getattr(self.tasks[target], attr).copy_(getattr(self.tasks[source], attr))
-
     # ----------------------------------------------------------------- CODA computation
     def _visible(self, attr: str, n_skills: int | None = None) -> Tensor:
         """[n_layers, n_skills * per_task, ...] rows of the tasks begun so far (or of the first `n_skills`)."""
@@ -218,66 +221,70 @@ class CodaPromptPool(nn.Module):
         attended = F.normalize(torch.einsum("bd,lmd->lbmd", query, self._visible("attn")), dim=-1)
         return torch.einsum("lbmd,lmd->lbm", attended, keys)
 
-    def skill_relevance(self, query: Tensor) -> Tensor:
-        """alpha_i [B, n_skills] >= 0: how strongly skill i shapes the prompt, ||c_i|| over all prompted layers.
-
-        The component alphas alone do not say this: they are cosines, and a skill learned later can act through
-        small alphas on large prompts (a frozen query keeps its cosines with new keys small). The size of the
-        skill's contribution is what the prompt actually receives from it."""
-        return self.relevance_from_alphas(self.component_alphas(query))
-
     @torch.no_grad()
-    def relevance_from_alphas(self, alphas: Tensor) -> Tensor:
-        """`skill_relevance` from already computed component alphas [n_layers, B, M_visible]; a measurement, never
-        differentiated (it may be computed lazily, after the step's inference mode has ended)."""
-        return self.contributions_from_alphas(alphas).square().sum((0, 3, 4)).sqrt()
+    def skill_relevance(self, query: Tensor) -> Tensor:
+        """alpha_i [B, n_skills] in (0, 1]: how close the query is to what skill i was trained on (the CL core's
+        relevance, Algorithm 1 line 5): exp((s_i - 1) / T) with s_i the best cosine between the query and the skill's
+        prototypes. A skill that has seen no query yet has alpha 1: nothing says it does not apply."""
+        n = self.n_skills
+        counts = self.prototype_counts[:n]  # [S, K]
+        protos = F.normalize(self.prototypes[:n], dim=-1)  # [S, K, Dq]
+        cos = torch.einsum("bd,skd->bsk", F.normalize(query, dim=-1), protos.to(query))
+        best = cos.masked_fill(counts.unsqueeze(0) == 0, -1.0).amax(-1)  # [B, S]
+        best = torch.where((counts > 0).any(-1).unsqueeze(0), best, torch.ones_like(best))
+        return torch.exp((best - 1.0) / RELEVANCE_TEMPERATURE)
 
     def skill_prompts(self, query: Tensor) -> Tensor:
-        """c_i [n_layers, B, n_skills, Lp, D] = sum_{m in skill i} alpha_m P_m; summed: the CODA prompt."""
+        """P_i [n_layers, B, n_skills, Lp, D] = sum_{m in skill i} alpha_m P_m: each skill's own prompt."""
         return self.contributions_from_alphas(self.component_alphas(query))
 
     def contributions_from_alphas(self, alphas: Tensor) -> Tensor:
         """`skill_prompts` from already computed component alphas [n_layers, B, M_visible]. The skills are those the
-        alphas cover, so alphas kept from before a new skill began still give their own step's contributions."""
+        alphas cover, so alphas kept from before a new skill began still give their own step's prompts."""
         n = alphas.shape[-1] // self.per_task
         prompts = self._visible("prompts", n).unflatten(1, (n, self.per_task))
         return torch.einsum("lbsm,lsmkd->lbskd", alphas.unflatten(-1, (n, self.per_task)), prompts)
 
-    def forward(self, query: Tensor, skill_weights: Tensor | None = None) -> Tensor:
-        """Fused prompt [n_layers, B, Lp, D] = sum_i v_i c_i; `skill_weights` v [B, n_skills], default ones.
-
-        v scales each component's alpha, so v = 1 multiplies by exactly 1.0 and reproduces CODA bit for bit.
-        """
+    def forward(self, query: Tensor, skill_weights: Tensor) -> Tensor:
+        """Fused prompt [n_layers, B, Lp, D] (eq. 3) for decision weights w [B, n_skills]."""
         return self.prompt_from_alphas(self.component_alphas(query), skill_weights)
 
-    def prompt_from_alphas(self, alphas: Tensor, skill_weights: Tensor | None = None) -> Tensor:
-        """`forward` from already computed component alphas [n_layers, B, M_visible] (computed once per step
-        and shared with the KVM's relevance scores)."""
-        if skill_weights is not None:
-            expected = (alphas.shape[1], self.n_skills)
-            if tuple(skill_weights.shape) != expected:
-                raise ValueError(f"skill_weights must have shape {expected}, got {tuple(skill_weights.shape)}")
-            alphas = alphas * skill_weights.to(alphas).repeat_interleave(self.per_task, dim=-1)
-        return torch.einsum("lbm,lmkd->lbkd", alphas, self._visible("prompts"))
+    def prompt_from_alphas(self, alphas: Tensor, skill_weights: Tensor) -> Tensor:
+        """Eq. 3, P = sum_i w_i P_i / (sum_i w_i + eps), from already computed component alphas [n_layers, B,
+        M_visible] and decision weights w [B, n_skills] >= 0. One-hot weights give that skill's own prompt: how
+        each skill is trained (`own_weights`) and how it is forced."""
+        expected = (alphas.shape[1], self.n_skills)
+        if tuple(skill_weights.shape) != expected:
+            raise ValueError(f"skill_weights must have shape {expected}, got {tuple(skill_weights.shape)}")
+        w = skill_weights.to(alphas)
+        w = w / (w.sum(-1, keepdim=True) + FUSION_EPS)
+        return torch.einsum(
+            "lbm,lmkd->lbkd", alphas * w.repeat_interleave(self.per_task, dim=-1), self._visible("prompts")
+        )
+
+    def own_weights(self, skill: int, batch_size: int, device: torch.device | None = None) -> Tensor:
+        """[B, n_skills] one-hot weights of skill `skill`: its prompt alone."""
+        weights = torch.zeros(batch_size, self.n_skills, device=device or self.task_count.device)
+        weights[:, skill] = 1.0
+        return weights
 
     @torch.no_grad()
-    def observe_queries(self, query: Tensor) -> None:
-        """Fold training queries [B, Dq] into the current skill's running mean query."""
-        t = self.n_skills - 1
-        seen = self.skill_query_counts[t].to(query.dtype)
-        self.skill_queries[t] = (self.skill_queries[t] * seen + query.sum(0)) / (seen + query.shape[0])
-        self.skill_query_counts[t] += query.shape[0]
-
-    def separation_penalty(self) -> Tensor:
-        """Mean squared alpha of the current skill's components on the earlier skills' mean queries."""
-        t = self.n_skills - 1
-        earlier = self.skill_query_counts[:t] > 0
-        if not bool(earlier.any()):
-            return torch.zeros((), device=self.task_count.device)
-        current = self.tasks[t]
-        keys = F.normalize(current.keys, dim=-1)
-        attended = F.normalize(torch.einsum("bd,lmd->lbmd", self.skill_queries[:t][earlier], current.attn), dim=-1)
-        return torch.einsum("lbmd,lmd->lbm", attended, keys).pow(2).mean()
+    def observe_queries(self, query: Tensor, skill: int | None = None) -> None:
+        """Keep the training queries [B, Dq] of `skill` (default: the one being learned) as its prototypes: each
+        distinct query its own running mean; past `PROTOTYPES_PER_SKILL`, a new one folds into the nearest."""
+        t = self.n_skills - 1 if skill is None else skill
+        protos, counts = self.prototypes[t], self.prototype_counts[t]
+        distinct, seen = torch.unique(query.detach().to(protos), dim=0, return_counts=True)
+        for q, n in zip(distinct, seen.tolist(), strict=True):
+            used = counts > 0
+            cos = F.cosine_similarity(protos, q.unsqueeze(0), dim=-1).masked_fill(~used, -2.0)
+            slot = int(cos.argmax())
+            if not bool(used.any()) or float(cos[slot]) < SAME_QUERY:
+                free = torch.nonzero(~used).flatten()
+                if len(free):
+                    slot = int(free[0])
+            protos[slot] = (protos[slot] * counts[slot] + q * n) / (counts[slot] + n)
+            counts[slot] += n
 
     def ortho_penalty(self) -> Tensor:
         """Official CODA orthogonality regulariser: mean ||R R^T - I||^2 over the visible rows of K, A, P."""

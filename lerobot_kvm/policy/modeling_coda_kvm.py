@@ -3,10 +3,12 @@ VLA-style backbone that predicts action chunks (L1 on normalized actions, ACT-st
 
 The Knowledge Validity Module (`lerobot_kvm.kvm`, attribute `kvm`) supervises the skills at inference: every
 model call of `select_action` / `predict_action_chunk` assesses the sensed context (E_c, smart gate, energy
-model) and fuses the skill prompts with the resulting weights (eqs. 2-4). It learns offline inside `forward()`
-during `lerobot-train` and online through `kvm_feedback()`. With `config.kvm.enabled=False` the policy is the
-plain CODA-Prompt core. Explicit skill weights [B, n_skills] passed to `forward`, `predict_action_chunk` or
-`select_action` bypass the KVM (all ones is plain CODA-Prompt).
+model) and fuses the skill prompts with the resulting weights (eqs. 2-4); where every candidate skill is suppressed
+the policy abstains safely (`policy.abstention`). It learns offline inside `forward()` during `lerobot-train` and
+online through `kvm_feedback()`. With `config.kvm.enabled=False` the policy is the CODA-Prompt core: the same fusion
+with every v = 1. Explicit skill weights [B, n_skills] passed to `forward`, `predict_action_chunk` or `select_action`
+bypass the KVM (one-hot weights force that skill alone). `forward` trains the skill being learned under its own
+prompt, so every skill works alone.
 """
 
 from collections import deque
@@ -22,8 +24,10 @@ from safetensors.torch import load_file
 from torch import Tensor
 
 from ..datasets.labels import LABELS_FILE, load_labels
+from ..kvm.fusion import candidates, decision_weights
 from ..kvm.supervisor import KnowledgeValidityModule
 from ..kvm.telemetry import KvmStepTelemetry, KvmTrace
+from .abstention import hold_chunk, normalized_rest, release_mask
 from .backbone import PromptedBackbone
 from .coda_prompt import CodaPromptPool, Skill
 from .configuration_coda_kvm import CodaKvmConfig
@@ -79,6 +83,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
         )
         self.kvm = KnowledgeValidityModule(config.kvm, config.context_dim, config.query_dim, config.n_tasks)
         self.register_buffer("query_fingerprint", torch.zeros(config.query_dim))
+        self._init_abstention(kwargs.get("dataset_stats"), kwargs.get("dataset_meta"))
         self._query_checked = False
         self.register_load_state_dict_post_hook(CodaKvmPolicy._after_load)
         self.backbone.requires_grad_(config.train_backbone)
@@ -87,6 +92,18 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self._kvm_telemetry: KvmStepTelemetry | None = None
         self._kvm_trace = KvmTrace()
         self.reset()
+
+    def _init_abstention(self, stats: dict | None, dataset_meta: Any) -> None:
+        """The rest command and the grip-like dimensions of the safe abstention, from the training dataset (kept in
+        the checkpoint; a policy built without a dataset rests at the normalized 0 and releases nothing)."""
+        dim = self.config.action_dim
+        mode = self.config.normalization_mapping.get("ACTION")
+        action_stats = (stats or {}).get(ACTION)
+        features = getattr(dataset_meta, "features", None) or {}
+        names = features.get(ACTION, {}).get("names") if isinstance(features.get(ACTION), dict) else None
+        self.register_buffer("rest_action", normalized_rest(action_stats, mode, dim))
+        self.register_buffer("release_mask", release_mask(names, dim))
+        self._last_action: Tensor | None = None
 
     def _kvm_load_dataset_labels(self, dataset_meta: Any) -> None:
         """episode_index -> (skill, outcome, variant) from the recorder's labels, for offline KVM learning."""
@@ -160,8 +177,8 @@ class CodaKvmPolicy(PreTrainedPolicy):
     ) -> dict[str, Any]:
         """Learn from one finished attempt (Algorithm 1, lines 26-40); see `lerobot_kvm.policy.feedback`.
 
-        outcome: "success", "failure" or "catastrophe"; trace: the attempt (default: the current trace, which
-        must hold one environment); demonstration: an optional corrective demonstration (policy inputs and
+        outcome: "success", "failure", "abstention" or "catastrophe"; trace: the attempt (default: the current trace,
+        which must hold one environment); demonstration: an optional corrective demonstration (policy inputs and
         normalized actions over T steps, see `policy.feedback.make_demonstration`; one that names a skill of the pool
         teaches that skill, so it is no knowledge gap); gradient_steps: the budget of
         KVM gradient steps (default `kvm.feedback_steps`). Returns a report of what was learned and decided.
@@ -236,15 +253,20 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self._kvm_trace = KvmTrace()
         self._kvm_telemetry = None
         self._queued_interventions: Tensor | None = None
+        self._last_action = None
 
     def forward(
         self, batch: dict[str, Any], reduction: str = "mean", skill_weights: Tensor | None = None
     ) -> tuple[Tensor, dict[str, float]]:
-        """L1 between predicted and target normalized action chunks, ignoring padded steps."""
+        """L1 between predicted and target normalized action chunks, ignoring padded steps. Without explicit
+        weights the skill being learned acts under its own prompt alone: what it learns, it does alone."""
         if reduction not in ("mean", "none"):
             raise ValueError(f"reduction must be 'mean' or 'none', got {reduction!r}")
         batch_size = self._check_observation(batch)
         query = self.encode_query(self._tasks(batch, batch_size))
+        own = skill_weights is None
+        if own:
+            skill_weights = self.pool.own_weights(self.n_skills - 1, batch_size, query.device)
         pred = self.decode(batch, self.pool.component_alphas(query), skill_weights)
         target, valid = self._check_action(batch, pred.shape[0])
         err = (pred - target).abs() * valid.unsqueeze(-1)
@@ -252,12 +274,8 @@ class CodaKvmPolicy(PreTrainedPolicy):
         l1 = err.sum() / (valid.sum() * pred.shape[-1]).clamp_min(1)
         info = {"l1_loss": l1.item()}
         loss = per_sample if reduction == "none" else l1
-        if self.training:
+        if self.training and own:
             self.pool.observe_queries(query)
-        if self.config.query_separation_weight > 0 and self.training:
-            separation = self.pool.separation_penalty()
-            loss = loss + self.config.query_separation_weight * separation
-            info["separation_loss"] = separation.item()
         if self.config.ortho_weight > 0:
             ortho = self.pool.ortho_penalty()
             loss = loss + self.config.ortho_weight * ortho
@@ -302,11 +320,13 @@ class CodaKvmPolicy(PreTrainedPolicy):
     @torch.no_grad()
     def select_action(self, batch: dict[str, Any], skill_weights: Tensor | None = None) -> Tensor:
         """Next normalized action [B, action_dim]; a new chunk every `n_action_steps` calls, fused with the
-        KVM's skill weights (or the given ones). With `kvm.assess_every_step` the KVM assesses every call and
-        replans at once when the set of suppressed skills changes."""
+        KVM's skill weights (or the given ones). While the gate is open the KVM assesses every call and replans at
+        once when the set of suppressed skills changes (a suppression acts within one control step); while it is
+        closed, the assessment of the chunk's first step holds (a closed gate costs E_c once per chunk)."""
         self._to_eval()
         pending = None
-        if self._action_queue and self.config.kvm.assess_every_step and self._kvm_active(skill_weights):
+        gate_open = self._kvm_telemetry is not None and bool(self._kvm_telemetry.gate.any())
+        if self._action_queue and gate_open and self._kvm_active(skill_weights):
             pending = self._plan(batch, skill_weights)
             self._kvm_telemetry = pending[2]
             if self._queued_interventions is not None and torch.equal(
@@ -317,14 +337,14 @@ class CodaKvmPolicy(PreTrainedPolicy):
                 self._action_queue.clear()
         if not self._action_queue:
             if pending is not None:
-                chunk, telemetry = self._finite(self.decode(batch, pending[0], pending[1]), batch), pending[2]
+                chunk, telemetry = self._act(batch, *pending), pending[2]
             else:
                 chunk, telemetry = self._infer(batch, skill_weights)
             self._action_queue.extend(chunk[:, : self.config.n_action_steps].transpose(0, 1))
             self._kvm_telemetry = telemetry
-            if self.config.kvm.assess_every_step:
-                self._queued_interventions = None if telemetry is None else telemetry.intervention
+            self._queued_interventions = None if telemetry is None else telemetry.intervention
         action = self._action_queue.popleft()
+        self._last_action = action
         self._record_step(batch, action)
         return action
 
@@ -384,23 +404,30 @@ class CodaKvmPolicy(PreTrainedPolicy):
     def _plan(
         self, batch: dict[str, Any], skill_weights: Tensor | None
     ) -> tuple[Tensor, Tensor | None, KvmStepTelemetry | None]:
-        """Algorithm 1, lines 4-21, each stage once: (component alphas, skill weights, the KVM's telemetry).
+        """Algorithm 1, lines 4-20, each stage once: (component alphas, decision weights, the KVM's telemetry).
 
         The observation x_t and its sensed context (line 4) give the frozen query q(x); the CL core proposes the
-        candidate skills and their relevance (line 5: the component alphas, from which the per-skill relevance is
-        computed only when the KVM reads it); the KVM assesses their validity (lines 7-17: E_c, the smart gate,
-        energies, v) and turns it into decision weights (line 20). Explicit skill weights, or the KVM disabled,
-        skip the assessment (telemetry None)."""
+        candidate skills and their relevance (line 5); the KVM assesses their validity (lines 7-17: E_c, the smart
+        gate, energies, v) and turns it into eq. 3's decision weights (line 20). Explicit skill weights skip both;
+        the KVM disabled keeps every v = 1 (telemetry None in both cases)."""
         batch_size = self._check_observation(batch)
         query = self.encode_query(self._tasks(batch, batch_size))
         alphas = self.pool.component_alphas(query)
-        if not self._kvm_active(skill_weights):
+        if skill_weights is not None:
             return alphas, skill_weights, None
+        relevance = self.pool.skill_relevance(query)
+        if not self.config.kvm.enabled:
+            everyone = torch.ones(self.n_skills, dtype=torch.bool, device=relevance.device)
+            return (
+                alphas,
+                decision_weights(torch.ones_like(relevance), relevance, candidates(relevance, everyone)),
+                None,
+            )
         n = self.n_skills
         weights, telemetry = self.kvm.assess(
             batch[self.config.context_key],
             query,
-            lambda: self.pool.relevance_from_alphas(alphas),  # per-skill relevance, only computed when needed
+            relevance,
             self.kvm.metabolism.active(n),
             self.kvm.metabolism.all_active(n),
             self.pool.corrections(),
@@ -410,7 +437,23 @@ class CodaKvmPolicy(PreTrainedPolicy):
     def _infer(self, batch: dict[str, Any], skill_weights: Tensor | None) -> tuple[Tensor, KvmStepTelemetry | None]:
         """One model call: `_plan`, then the fused prompt and the decoder (Algorithm 1, lines 21-22)."""
         alphas, weights, telemetry = self._plan(batch, skill_weights)
-        return self._finite(self.decode(batch, alphas, weights), batch), telemetry
+        return self._act(batch, alphas, weights, telemetry), telemetry
+
+    def _act(
+        self, batch: dict[str, Any], alphas: Tensor, weights: Tensor, telemetry: KvmStepTelemetry | None
+    ) -> Tensor:
+        """The action chunk: decoded from the fused prompt, or the safe abstention's hold in the rows where the KVM
+        found every candidate invalid (no prompt is trusted there, so none reaches the decoder's output)."""
+        chunk = self.decode(batch, alphas, weights)
+        if telemetry is not None:
+            abstained = telemetry.abstained
+            if bool(abstained.any()):
+                last = self._last_action
+                if last is None or last.shape != chunk[:, 0].shape:
+                    last = self.rest_action.to(chunk).expand_as(chunk[:, 0])
+                held = hold_chunk(last.to(chunk), self.rest_action, self.release_mask, chunk.shape[1])
+                chunk = torch.where(abstained.view(-1, 1, 1), held, chunk)
+        return self._finite(chunk, batch)
 
     def _finite(self, chunk: Tensor, batch: dict[str, Any]) -> Tensor:
         """`chunk`, or an error naming the rows and inputs: never a NaN action (a finite but huge input can
@@ -428,8 +471,9 @@ class CodaKvmPolicy(PreTrainedPolicy):
             )
         return chunk
 
-    def decode(self, batch: dict[str, Any], alphas: Tensor, skill_weights: Tensor | None) -> Tensor:
-        """Eq. 4: actions from the backbone prefixed by the fused prompt (component alphas [L, B, M])."""
+    def decode(self, batch: dict[str, Any], alphas: Tensor, skill_weights: Tensor) -> Tensor:
+        """Eq. 4: actions from the backbone prefixed by the fused prompt (component alphas [L, B, M], decision
+        weights [B, S])."""
         prompts = self.pool.prompt_from_alphas(alphas, skill_weights)
         images = [batch[key] for key in self.config.image_features]
         return self.backbone(images, batch[OBS_STATE], batch[self.config.context_key], prompts)

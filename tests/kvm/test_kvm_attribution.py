@@ -99,7 +99,7 @@ def test_a_demonstration_verifies_the_culprit_by_removing_each_proposed_skill(
 ) -> None:
     """The demonstration is exactly what the policy does without one skill: that skill is blamed, whatever its
     share of the prompt, and the evidence is in the report."""
-    settings = {"candidate_min_alpha": 0.0, "gap_on_failure": False}
+    settings = {"gap_on_failure": False}
     policy = make_policy(kvm=make_kvm_config(**settings), chunk_size=1, n_action_steps=1)
     policy.begin_new_skill("gentle_grasp")
     policy.begin_new_skill("slow_lift")
@@ -251,7 +251,8 @@ def test_no_skill_from_a_failure_when_the_gap_test_is_off_or_an_alternative_is_s
 def test_a_demonstration_of_a_skill_the_pool_has_is_no_knowledge_gap(make_policy, make_batch, attempt) -> None:
     unnamed, named = make_policy(), make_policy()
     for policy in (unnamed, named):
-        policy.begin_new_skill("gentle_grasp")  # weak in the egg's context: the gap test alone would pass
+        policy.begin_new_skill("gentle_grasp")  # learned on another task: weak in the egg's context, a gap
+        policy.pool.observe_queries(policy.encode_query(["open the drawer"]))
     demo = _demonstration(unnamed, make_batch)
     gap = unnamed.kvm_feedback("catastrophe", attempt(unnamed, EGG, steps=6), demonstration=demo, gradient_steps=2)
     assert gap["new_skill"]["created"] and unnamed.n_skills == 3

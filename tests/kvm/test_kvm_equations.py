@@ -8,7 +8,7 @@ from torch import Tensor, nn
 
 from lerobot_kvm.kvm.context_encoder import ContextEncoder
 from lerobot_kvm.kvm.energy import EnergyModel, JointFeature, RiskClassifier, validity
-from lerobot_kvm.kvm.fusion import correction_validity, fuse_weights
+from lerobot_kvm.kvm.fusion import abstains, candidates, correction_validity, decision_weights
 from lerobot_kvm.kvm.gate import SmartGate, adaptive_threshold
 from lerobot_kvm.kvm.losses import bce_loss, contrastive_loss, energy_loss, total_loss
 from lerobot_kvm.kvm.metabolism import SkillMetabolism, fcrnc, srnc
@@ -146,18 +146,18 @@ def test_bounded_energy_never_exceeds_e_max() -> None:
     assert model(-torch.ones(1, 4)).item() >= -20.0
 
 
-def test_eq3_fusion_is_identity_at_v_one_and_renormalises_suppression() -> None:
-    alphas = torch.tensor([[0.5, -1.5, 2.0]])
-    ones = torch.ones(1, 3)
-    v = torch.tensor([[0.0, 1.0, 0.5]])
-    assert torch.equal(fuse_weights(v, alphas), v)  # default: w_i = v_i * alpha_i
-    assert torch.equal(fuse_weights(ones, alphas, renormalize=True), ones)  # exactly: S / S = 1.0
-    w = fuse_weights(torch.tensor([[0.0, 1.0, 1.0]]), alphas, renormalize=True)
-    torch.testing.assert_close(w, torch.tensor([[0.0, 4.0 / 3.5, 4.0 / 3.5]]))
-    w = fuse_weights(torch.tensor([[0.5, 1.0, 0.25]]), alphas, renormalize=True)
-    kept = 0.5 * 0.5 + 1.5 + 0.25 * 2.0
-    torch.testing.assert_close(w, torch.tensor([[0.5, 1.0, 0.25]]) * 4.0 / kept)
-    assert torch.equal(fuse_weights(torch.zeros(1, 3), alphas, renormalize=True), torch.zeros(1, 3))
+def test_eq3_decision_weights_candidates_and_abstention_hand_values() -> None:
+    alphas = torch.tensor([[1.0, 0.2, 0.004], [0.5, 0.5, 0.001]])
+    active = torch.tensor([True, True, True])
+    # candidates: relevance >= 1 % of the row's best (0.004 < 0.01 in row 0; 0.001 < 0.005 in row 1)
+    cand = candidates(alphas, active)
+    assert cand.tolist() == [[True, True, False], [True, True, False]]
+    assert candidates(alphas, torch.tensor([False, True, True])).tolist() == [[False, True, True], [False, True, False]]
+    v = torch.tensor([[0.05, 0.9, 1.0], [0.05, 0.02, 1.0]])
+    w = decision_weights(v, alphas, cand)
+    torch.testing.assert_close(w, torch.tensor([[0.05, 0.18, 0.0], [0.025, 0.01, 0.0]]))
+    # row 1: both candidates suppressed (v < tau_v = 0.1): nothing valid to fuse; the non-candidate does not count
+    assert abstains(v, w, cand).tolist() == [False, True]
 
 
 def test_a_correction_is_valid_at_least_where_the_skill_it_corrects_is_not_and_is_relied_on() -> None:
@@ -181,20 +181,22 @@ def test_of_several_corrections_of_one_skill_only_the_most_valid_inherits_and_a_
     torch.testing.assert_close(correction_validity(v, corrections, alphas, 0.8, pruned_0), v)
 
 
-def test_eq3_fused_prompt_is_the_weighted_sum_of_skill_contributions() -> None:
+def test_eq3_fused_prompt_is_the_normalised_weighted_sum_of_skill_prompts() -> None:
     torch.manual_seed(0)
     pool = CodaPromptPool(n_layers=1, pool_size=6, n_tasks=3, prompt_length=2, dim_model=4, query_dim=8)
     for name in ("a", "b", "c"):
         pool.begin_skill(name)
     query = torch.randn(2, 8)
-    contributions = pool.skill_prompts(query)  # [L, B, S, Lp, D]
-    alphas = pool.skill_relevance(query)
-    v = torch.tensor([[0.0, 1.0, 1.0], [1.0, 0.2, 1.0]])
-    for renormalize in (False, True):
-        weights = fuse_weights(v, alphas, renormalize)
-        expected = (contributions * weights[None, :, :, None, None]).sum(2)
-        torch.testing.assert_close(pool(query, weights), expected)
-        assert torch.equal(pool(query, fuse_weights(torch.ones(2, 3), alphas, renormalize)), pool(query))
+    prompts = pool.skill_prompts(query)  # P_i [L, B, S, Lp, D]
+    w = torch.tensor([[0.0, 2.0, 0.5], [1.0, 0.2, 3.0]])
+    expected = (prompts * w[None, :, :, None, None]).sum(2) / w.sum(-1)[None, :, None, None]
+    torch.testing.assert_close(pool(query, w), expected)
+    # suppressing one of two candidates hands the fused prompt to the other, at its own magnitude
+    two = torch.tensor([[0.0, 0.7, 0.0], [0.0, 0.0, 0.3]])
+    torch.testing.assert_close(pool(query, two), torch.stack([prompts[:, 0, 1], prompts[:, 1, 2]], dim=1))
+    # one-hot weights are the skill's own prompt exactly (how a skill is trained and forced)
+    for skill in range(3):
+        assert torch.equal(pool(query, pool.own_weights(skill, 2)), prompts[:, :, skill])
 
 
 def test_eq5_triplet_loss_hand_values() -> None:

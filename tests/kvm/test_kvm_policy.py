@@ -11,6 +11,7 @@ from lerobot_kvm.evaluation.overhead import measure_overhead, paired_ratio
 from lerobot_kvm.kvm.attribution import PERSISTENCE
 from lerobot_kvm.kvm.configuration import KvmConfig
 from lerobot_kvm.kvm.energy import GAMMA, L0
+from lerobot_kvm.kvm.fusion import candidates, decision_weights
 from lerobot_kvm.kvm.losses import ENERGY_MARGIN
 from lerobot_kvm.kvm.metabolism import METABOLISM_WINDOW, PRUNE_THRESHOLD
 from lerobot_kvm.kvm.telemetry import TAU_V
@@ -20,8 +21,14 @@ CONTEXT = "observation.context"
 
 
 def core_chunk(policy, batch, skill_weights=None):
-    """The CODA-Prompt core's chunk under the given skill weights (None: the plain CODA prompt), the KVM left out."""
-    return policy.decode(batch, policy.pool.component_alphas(policy.encode_query(batch["task"])), skill_weights)
+    """The CODA-Prompt core's chunk under the given skill weights (None: eq. 3 with every v = 1, the KVM left
+    out)."""
+    query = policy.encode_query(batch["task"])
+    if skill_weights is None:
+        relevance = policy.pool.skill_relevance(query)
+        everyone = torch.ones(policy.n_skills, dtype=torch.bool)
+        skill_weights = decision_weights(torch.ones_like(relevance), relevance, candidates(relevance, everyone))
+    return policy.decode(batch, policy.pool.component_alphas(query), skill_weights)
 
 
 def two_skill_policy(make_policy, **overrides):
@@ -66,11 +73,24 @@ def test_closed_gate_gives_exactly_the_coda_core_actions(make_policy, make_batch
     assert not torch.equal(open_chunk, core)  # v < 1 re-weights the skills
 
 
-def test_suppressing_a_skill_follows_eq3(make_policy, make_batch, make_kvm_config) -> None:
-    policy = two_skill_policy(make_policy, kvm=make_kvm_config(force_validity=0.0))
-    batch = make_batch(policy.config, with_action=False)
-    policy.predict_action_chunk(batch)
-    assert torch.equal(policy.kvm_telemetry.skill_weight, torch.zeros(4, 2))  # every skill invalid: no prompt
+def test_every_candidate_suppressed_abstains_and_holds(make_policy, make_batch, make_kvm_config) -> None:
+    policy = two_skill_policy(make_policy, kvm=make_kvm_config(force_validity=1.0))
+    policy.rest_action[-1] = -2.0  # the last dimension is the grip: it rests at -2 (normalized)
+    policy.release_mask[-1] = True
+    batch = make_batch(policy.config, batch_size=1, with_action=False)
+    last = policy.select_action(batch)  # acting normally: the command the abstention will hold
+    policy.config.kvm.force_validity = 0.0  # every skill invalid now
+    policy._action_queue.clear()
+    first = policy.select_action(batch)
+    tele = policy.kvm_telemetry
+    assert torch.equal(tele.skill_weight, torch.zeros(1, 2)) and tele.abstained.all()  # no prompt is trusted
+    assert tele.row(0)["abstained"] is True
+    second = policy.select_action(batch)
+    # the arm holds its last command; the grip goes halfway to rest per step
+    assert torch.equal(first[:, :-1], last[:, :-1]) and torch.equal(second[:, :-1], last[:, :-1])
+    torch.testing.assert_close(first[:, -1], (last[:, -1] - 2.0) / 2)
+    torch.testing.assert_close(second[:, -1], (last[:, -1] - 2.0 * 3) / 4)
+    assert policy.kvm_trace().summary()["abstention_steps"] == 2
 
 
 def test_a_correction_is_out_of_force_with_the_gate_closed_and_takes_over_where_its_skill_is_suppressed(
@@ -137,7 +157,7 @@ def test_telemetry_and_trace_per_step(make_policy, attempt) -> None:
     assert all(t is not None for t in trace.telemetry)
     tele = policy.kvm_telemetry
     row = tele.row(0)
-    assert set(row) >= {"sigma2", "tau", "gate", "alpha", "energy", "validity", "decision_weight", "intervention"}
+    assert set(row) >= {"sigma2", "tau", "gate", "alpha", "energy", "validity", "skill_weight", "intervention"}
     assert len(row["validity"]) == 2
     json.dumps(row)
     summary = trace.summary()
@@ -160,15 +180,20 @@ def test_risk_model_and_smart_gate_switch_on_the_same_weights(make_policy, make_
     assert policy.kvm_telemetry.gate.all()
 
 
-def test_assess_every_step_replans_when_a_suppression_starts(make_policy, make_batch, make_kvm_config) -> None:
-    policy = two_skill_policy(make_policy, kvm=make_kvm_config(assess_every_step=True))
+def test_with_the_gate_open_a_suppression_replans_within_one_step(make_policy, make_batch, make_kvm_config) -> None:
+    policy = two_skill_policy(make_policy, kvm=make_kvm_config(force_validity=1.0))
     batch = make_batch(policy.config, batch_size=1, with_action=False)
+    policy.kvm.set_gate_override("closed")
     policy.select_action(batch)
-    assert len(policy._action_queue) == 1
-    policy.config.kvm.force_validity = 0.0  # every candidate now suppressed
+    policy.config.kvm.force_validity = 0.0  # every candidate now suppressed, but the gate was closed
     policy.select_action(batch)
-    assert len(policy._action_queue) == 1  # the queued chunk was dropped and a new one planned
-    assert policy.kvm_telemetry.intervention.any()
+    assert not policy.kvm_telemetry.intervention.any()  # the chunk's assessment holds: no call to the KVM
+    policy.kvm.set_gate_override("open")
+    policy.select_action(batch)  # a new chunk, assessed with the gate open
+    assert len(policy._action_queue) == 1 and policy.kvm_telemetry.intervention.any()
+    policy.config.kvm.force_validity = 1.0  # valid again: the next step replans at once
+    policy.select_action(batch)
+    assert len(policy._action_queue) == 1 and not policy.kvm_telemetry.intervention.any()
 
 
 def test_forward_learns_the_kvm_offline_and_reports_metrics(make_policy, make_batch) -> None:
@@ -341,16 +366,17 @@ def test_paired_ratio_cancels_a_drift_between_rotations() -> None:
         paired_ratio(closed, off[:2])
 
 
-@pytest.mark.parametrize("assess_every_step", [False, True])
-def test_a_huge_finite_context_raises_instead_of_a_nan_action(
-    make_policy, make_kvm_config, make_batch, assess_every_step
-):
-    policy = make_policy(kvm=make_kvm_config(assess_every_step=assess_every_step))
+def test_a_huge_finite_context_abstains_with_the_kvm_and_raises_without(make_policy, make_batch):
+    policy = make_policy()
     policy.eval()
     batch = make_batch(policy.config, batch_size=2, with_action=False)
     policy.reset()
     assert torch.isfinite(policy.select_action(batch)).all()  # (and a chunk queued for the next steps)
     batch[CONTEXT][0, 0] = 1e30
+    policy.reset()
+    action = policy.select_action(batch)  # the KVM finds row 0's context invalid: it holds, flagged
+    assert torch.isfinite(action).all() and policy.kvm_telemetry.abstained.tolist() == [True, False]
+    policy.config.kvm.enabled = False
     policy.reset()
     with pytest.raises(ValueError, match=r"not finite for batch rows \[0\].*observation.context"):
         policy.select_action(batch)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_kvm.policy.coda_prompt import CodaPromptPool, Skill
+from lerobot_kvm.policy.coda_prompt import PROTOTYPES_PER_SKILL, RELEVANCE_TEMPERATURE, CodaPromptPool, Skill
 
 
 def make_pool(n_skills: int = 2) -> CodaPromptPool:
@@ -41,23 +41,45 @@ def test_alpha_matches_hand_computation() -> None:
     np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-6)
     assert (got < 0).any(), "CODA alphas are cosines without softmax and can be negative"
     prompts = np.concatenate([t.prompts.detach().numpy() for t in pool.tasks[:2]], axis=1)  # [L, M, Lp, D]
-    contributions = np.einsum("lbsm,lsmkd->bslkd", expected.reshape(2, 3, 2, 2), prompts.reshape(2, 2, 2, 4, 8))
-    relevance = pool.skill_relevance(query).detach().numpy()
-    np.testing.assert_allclose(relevance, np.sqrt((contributions**2).sum((2, 3, 4))), rtol=1e-5, atol=1e-6)
+    own = np.einsum("lbsm,lsmkd->lbskd", expected.reshape(2, 3, 2, 2), prompts.reshape(2, 2, 2, 4, 8))
+    np.testing.assert_allclose(pool.skill_prompts(query).detach().numpy(), own, rtol=1e-5, atol=1e-6)
 
 
-def test_relevance_is_the_size_of_a_skills_contribution_not_its_alphas() -> None:
-    """A skill whose keys barely match the query but whose prompts are large still shapes the prompt most."""
-    pool = make_pool(2)
-    query = torch.randn(1, 16)
-    with torch.no_grad():
-        pool.tasks[1].prompts.mul_(1e3)
-    alphas = pool.component_alphas(query).unflatten(-1, (2, 2))
-    relevance = pool.skill_relevance(query)[0]
-    sizes = pool.skill_prompts(query).square().sum((0, 3, 4)).sqrt()[0]
-    torch.testing.assert_close(relevance, sizes)
-    assert alphas[..., 1, :].abs().sum() < 10 * alphas[..., 0, :].abs().sum()
-    assert relevance[1] > 100 * relevance[0]
+def test_relevance_is_how_close_the_query_is_to_each_skills_training_queries() -> None:
+    pool = make_pool(3)
+    a, b = torch.randn(2, 16)
+    pool.observe_queries(a.expand(4, -1), skill=0)
+    pool.observe_queries(torch.stack([b, -a]), skill=1)  # two distinct prompts: two prototypes
+    assert pool.prototype_counts[:2, :2].tolist() == [[4, 0], [1, 1]]
+    query = torch.stack([a, b, 0.5 * a + 0.5 * b])
+    cos = torch.nn.functional.cosine_similarity
+    best = torch.stack(
+        [
+            torch.stack([cos(q, a, dim=0), torch.maximum(cos(q, b, dim=0), cos(q, -a, dim=0)), torch.tensor(1.0)])
+            for q in query
+        ]
+    )
+    expected = torch.exp((best - 1) / RELEVANCE_TEMPERATURE)  # skill 2 has seen nothing: relevance 1
+    torch.testing.assert_close(pool.skill_relevance(query), expected)
+    assert pool.skill_relevance(a.unsqueeze(0))[0, 0].item() == pytest.approx(1.0, abs=1e-5)
+
+
+def test_prototypes_merge_equal_queries_and_fold_into_the_nearest_when_full() -> None:
+    pool = make_pool(1)
+    queries = torch.randn(PROTOTYPES_PER_SKILL + 1, 16)
+    pool.observe_queries(queries[:PROTOTYPES_PER_SKILL])
+    pool.observe_queries(queries[:1])  # the same task string again: counted, not a new prototype
+    counts = pool.prototype_counts[0]
+    slot = int(torch.nn.functional.cosine_similarity(pool.prototypes[0], queries[:1]).argmax())
+    assert int(counts[slot]) == 2 and sorted(counts.tolist()) == [1] * (PROTOTYPES_PER_SKILL - 1) + [2]
+    extra = queries[-1]
+    nearest = int(torch.nn.functional.cosine_similarity(pool.prototypes[0], extra.unsqueeze(0)).argmax())
+    before = pool.prototypes[0, nearest].clone()
+    pool.observe_queries(extra.unsqueeze(0))
+    n = int(pool.prototype_counts[0, nearest]) - 1
+    torch.testing.assert_close(pool.prototypes[0, nearest], (before * n + extra) / (n + 1))
+    state = pool.state_dict()
+    assert "prototypes" in state and "prototype_counts" in state
 
 
 def test_gram_schmidt_new_rows_orthogonal_to_all_old_rows() -> None:
@@ -98,21 +120,17 @@ def test_pool_capacity_and_duplicate_names() -> None:
         make_pool(1).begin_skill("skill_0")
 
 
-def test_fused_prompt_with_unit_weights_is_exactly_coda() -> None:
+def test_fused_prompt_is_eq3_over_each_skills_own_prompt() -> None:
     pool = make_pool(2)
     query = torch.randn(3, 16)
-    coda = pool(query)
-    assert torch.equal(pool(query, torch.ones(3, 2)), coda)
-    # Hand CODA prompt: sum_m alpha_m P_m over the visible components.
+    # Hand prompts: P_i = sum_{m in i} alpha_m P_m over the skill's own components.
     alphas = hand_alphas(pool, query.numpy().astype(np.float64))
     prompts = np.concatenate([t.prompts.detach().numpy() for t in pool.tasks[:2]], axis=1)
-    np.testing.assert_allclose(coda.detach().numpy(), np.einsum("lbm,lmkd->lbkd", alphas, prompts), atol=1e-6)
-    # Per-skill contributions sum to the CODA prompt; weights scale them.
-    contributions = pool.skill_prompts(query)
-    assert contributions.shape == (2, 3, 2, 4, 8)
-    torch.testing.assert_close(contributions.sum(2), coda)
-    weights = torch.tensor([[0.0, 1.0], [0.5, 2.0], [1.0, 0.0]])
-    torch.testing.assert_close(pool(query, weights), (contributions * weights[None, :, :, None, None]).sum(2))
+    own = [np.einsum("lbm,lmkd->lbkd", alphas[..., 2 * i : 2 * i + 2], prompts[:, 2 * i : 2 * i + 2]) for i in (0, 1)]
+    weights = torch.tensor([[0.0, 1.0], [0.5, 2.0], [3.0, 0.0]])
+    w = weights.numpy() / weights.numpy().sum(-1, keepdims=True)
+    expected = own[0] * w[None, :, 0, None, None] + own[1] * w[None, :, 1, None, None]
+    np.testing.assert_allclose(pool(query, weights).detach().numpy(), expected, atol=1e-6)
     with pytest.raises(ValueError, match="skill_weights"):
         pool(query, torch.ones(3, 3))
 
@@ -147,15 +165,6 @@ def test_corrections_are_kept_in_the_skill_table_and_default_to_none() -> None:
     assert fresh.skills == [Skill(0, "old", "")] and fresh.corrections() is None
 
 
-def test_copy_skill_starts_the_learned_skill_as_an_earlier_one() -> None:
-    pool = make_pool(2)
-    pool.copy_skill(0, 1)
-    for attr in ("prompts", "keys", "attn"):
-        assert torch.equal(getattr(pool.tasks[1], attr), getattr(pool.tasks[0], attr))
-    with pytest.raises(ValueError, match="copy"):
-        pool.copy_skill(1, 0)  # only into the skill being learned
-
-
 def test_skill_table_overflow_is_an_error() -> None:
     pool = make_pool(0)
     with pytest.raises(ValueError, match="skill table"):
@@ -165,39 +174,3 @@ def test_skill_table_overflow_is_an_error() -> None:
 def test_orthogonality_penalty_is_zero_right_after_gram_schmidt() -> None:
     pool = make_pool(3)
     assert pool.ortho_penalty().item() < 1e-10
-
-
-def test_each_skill_keeps_the_mean_of_its_training_queries() -> None:
-    pool = make_pool(1)
-    a, b = torch.randn(4, 16), torch.randn(2, 16)
-    pool.observe_queries(a)
-    pool.observe_queries(b)
-    assert torch.allclose(pool.skill_queries[0], torch.cat([a, b]).mean(0), atol=1e-6)
-    assert pool.skill_query_counts.tolist() == [6, 0, 0]
-    state = pool.state_dict()
-    assert "skill_queries" in state and "skill_query_counts" in state
-
-
-def test_separation_penalty_is_the_new_components_squared_alpha_on_earlier_queries() -> None:
-    pool = make_pool(1)
-    assert pool.separation_penalty().item() == 0.0  # no earlier skill
-    old_query = torch.randn(5, 16)
-    pool.observe_queries(old_query)
-    pool.begin_skill("next")
-    expected = hand_alphas(pool, old_query.mean(0, keepdim=True).numpy().astype(np.float64))[:, :, 2:]  # new rows
-    assert pool.separation_penalty().item() == pytest.approx(float((expected**2).mean()), rel=1e-5)
-
-
-def test_separation_training_silences_new_components_on_old_queries_and_leaves_old_rows_alone() -> None:
-    pool = make_pool(1)
-    pool.observe_queries(torch.randn(8, 16))
-    pool.begin_skill("next")
-    old = {k: v.clone() for k, v in pool.tasks[0].state_dict().items()}
-    before = pool.separation_penalty().item()
-    optimizer = torch.optim.Adam([p for p in pool.parameters() if p.requires_grad], lr=0.05)
-    for _ in range(100):
-        optimizer.zero_grad()
-        pool.separation_penalty().backward()
-        optimizer.step()
-    assert pool.separation_penalty().item() < 0.01 * before
-    assert all(torch.equal(v, pool.tasks[0].state_dict()[k]) for k, v in old.items())

@@ -44,19 +44,21 @@ def test_per_sample_loss_and_ortho_penalty(make_policy, make_batch) -> None:
     assert "ortho_loss" in info
 
 
-def test_query_separation_loss_trains_the_new_skill_away_from_earlier_queries(make_policy, make_batch) -> None:
-    policy = make_policy(query_separation_weight=1.0)
+def test_forward_trains_the_new_skill_under_its_own_prompt_alone(make_policy, make_batch) -> None:
+    policy = make_policy()
     policy.train()
     batch = make_batch(policy.config)
-    assert policy.forward(batch)[1]["separation_loss"] == 0.0  # one skill: nothing to separate from
-    assert int(policy.pool.skill_query_counts[0]) == 3  # training queries folded into skill 0's mean
+    policy.forward(batch)
+    assert int(policy.pool.prototype_counts[0].sum()) == 3  # skill 0 keeps its training queries
     policy.begin_new_skill("next")
-    loss, info = policy.forward(batch)
-    assert info["separation_loss"] > 0.0
+    policy.eval()  # no dropout: the two losses below must be equal
+    own = policy.pool.own_weights(1, 3)
+    assert policy.forward(batch)[0].item() == policy.forward(batch, skill_weights=own)[0].item()
+    policy.train()
+    loss, _ = policy.forward(batch)
     loss.backward()
-    assert policy.pool.tasks[1].keys.grad is not None and policy.pool.tasks[0].keys.grad is None
-    policy.eval()
-    assert "separation_loss" not in policy.forward(batch)[1]
+    assert policy.pool.tasks[1].prompts.grad is not None and policy.pool.tasks[0].prompts.grad is None
+    assert int(policy.pool.prototype_counts[1].sum()) == 3 and int(policy.pool.prototype_counts[0].sum()) == 3
 
 
 def test_frozen_backbone_trains_only_the_current_skill(make_policy, make_batch) -> None:
@@ -182,10 +184,12 @@ def test_skill_relevance_and_prompts_for_task_strings(make_policy) -> None:
     policy.begin_new_skill("skill_1")
     tasks = ["pick up the stone", "gently pick up the egg"]
     relevance = policy.skill_relevance(tasks)
-    contributions = policy.skill_prompts(tasks)
-    assert relevance.shape == (2, 2)
-    assert contributions.shape == (2, 2, 2, 4, 32)
-    torch.testing.assert_close(contributions.sum(2), policy.pool(policy.encode_query(tasks)))
+    prompts = policy.skill_prompts(tasks)
+    assert relevance.shape == (2, 2) and torch.equal(relevance, torch.ones(2, 2))  # no skill has seen a query yet
+    assert prompts.shape == (2, 2, 2, 4, 32)
+    query = policy.encode_query(tasks)
+    for skill in range(2):
+        assert torch.equal(policy.pool(query, policy.pool.own_weights(skill, 2)), prompts[:, :, skill])
 
 
 def test_select_action_uses_a_chunk_queue(make_policy, make_batch) -> None:
@@ -242,3 +246,37 @@ def test_bad_select_action_input_raises(make_policy, make_batch) -> None:
     batch["observation.state"] = torch.zeros(6)
     with pytest.raises(ValueError, match=r"observation\.state.*\[1, 6\]"):
         policy.select_action(batch)
+
+
+def test_forcing_a_skill_of_a_trained_pool_gives_exactly_its_stage_trained_actions(make_policy, make_batch) -> None:
+    """Two stages, each a different task with its own targets (the second with the backbone frozen, as the
+    sequences train it): afterwards each skill, forced alone, acts exactly as right after its own stage (tolerance
+    0), the two act differently, and the KVM-off fusion routes each task to the skill that learned it alone."""
+    policy = make_policy()
+    stages = []
+    for stage, task in enumerate(("pick up the stone", "open the drawer")):
+        if stage:
+            policy.begin_new_skill("drawer")
+            policy.backbone.requires_grad_(False)
+        batch = make_batch(policy.config, batch_size=4)
+        batch["task"] = [task] * 4
+        batch["action"] = torch.full_like(batch["action"], 1.0 - 2.0 * stage)  # +1 for the stone, -1 for the drawer
+        optimizer = torch.optim.Adam([p for p in policy.parameters() if p.requires_grad], lr=3e-3 if stage else 1e-3)
+        policy.train()
+        for _ in range(100 if stage else 30):
+            loss, _ = policy.forward(batch)
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+        policy.eval()
+        query = {k: v for k, v in batch.items() if k not in ("action", "action_is_pad")}
+        stages.append((query, policy.predict_action_chunk(query, skill_weights=policy.pool.own_weights(stage, 4))))
+    forced = []
+    for skill, (query, trained) in enumerate(stages):
+        forced.append(policy.predict_action_chunk(query, skill_weights=policy.pool.own_weights(skill, 4)))
+        assert torch.equal(forced[-1], trained)
+        policy.config.kvm.enabled = False
+        assert torch.equal(policy.predict_action_chunk(query), forced[-1])  # the other task's skill: no candidate
+        policy.config.kvm.enabled = True
+    # the second skill, a prompt on a frozen backbone, moved its task's actions towards its own target
+    assert forced[0].mean() - forced[1].mean() > 0.05
