@@ -45,6 +45,11 @@ class KvmObsolescenceEnvConfig(EnvConfig):
         if self.instruction not in INSTRUCTIONS:
             raise ValueError(f"env.instruction must be one of {INSTRUCTIONS}, got {self.instruction!r}")
         resolve_tasks(self.task or "")  # fail early on unknown names
+        for name in ("episode_length", "fps", "image_size", "render_size"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value <= 0):
+                hint = " (leave it unset for the scenario's own length)" if name == "episode_length" else ""
+                raise ValueError(f"env.{name} must be a positive integer{hint}, got {value!r}")
         self.features = {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(len(ACTION_NAMES),)),
             "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(len(STATE_NAMES),)),

@@ -352,5 +352,5 @@ def test_a_huge_finite_context_raises_instead_of_a_nan_action(
     assert torch.isfinite(policy.select_action(batch)).all()  # (and a chunk queued for the next steps)
     batch[CONTEXT][0, 0] = 1e30
     policy.reset()
-    with pytest.raises(ValueError, match=r"not finite for batch rows \[0\].*observation.context"):
+    with pytest.raises(ValueError, match=r"observation 'observation.context' has a value of magnitude 1e\+30"):
         policy.select_action(batch)
