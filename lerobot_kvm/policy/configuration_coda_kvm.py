@@ -85,6 +85,16 @@ class CodaKvmConfig(PreTrainedConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        try:
+            self._check_values()
+        except ValueError as err:
+            # LeRobot's command-line parser (draccus) replaces this message by "Couldn't instantiate class
+            # CodaKvmConfig": logged first, the command line still says which setting is wrong.
+            logger.error("coda_kvm: %s", err)
+            raise
+
+    def _check_values(self) -> None:
+        """Each setting's range, with its name in the error."""
         positive = {
             "chunk_size": self.chunk_size,
             "n_action_steps": self.n_action_steps,
