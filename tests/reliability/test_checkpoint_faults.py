@@ -46,6 +46,13 @@ def test_a_truncated_config_file_is_named(checkpoint):
         CodaKvmPolicy.from_pretrained(checkpoint)
 
 
+@pytest.mark.parametrize("name", ["config.json", "model.safetensors"])
+def test_a_missing_checkpoint_file_is_named(checkpoint, name):
+    (checkpoint / name).unlink()
+    with pytest.raises(FileNotFoundError, match=rf"{checkpoint / name}"):
+        CodaKvmPolicy.from_pretrained(checkpoint)
+
+
 def test_an_act_checkpoint_is_named_as_another_policy(tmp_path):
     ACTConfig(pretrained_backbone_weights=None)._save_pretrained(tmp_path)
     with pytest.raises(ValueError, match=r"'type' is 'act', not 'coda_kvm'"):

@@ -29,6 +29,29 @@ def test_a_walkthrough_count_below_one_writes_nothing(tmp_path, monkeypatch, arg
     assert list(tmp_path.iterdir()) == []  # no dataset, no output directory, no settings file
 
 
+CL_TINY = Path(__file__).resolve().parents[2] / "configs" / "cl_tiny.json"
+RECORD = ["record", "--scenarios=egg_vs_stone", "--root=data"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["record", "--scenarios=bogus", "--root=data"], r"unknown task 'bogus': expected a scenario id"),
+        ([*RECORD, "--variants=melted"], r"egg_vs_stone: unknown variant 'melted' \(have \['prior', 'shifted'\]\)"),
+        ([*RECORD, "--skills=juggle"], r"egg_vs_stone: unknown skill 'juggle' \(have 'firm_grasp', 'gentle_grasp'\)"),
+        ([*RECORD, "--episodes=0"], r"episodes must be >= 1, got 0"),
+        ([*RECORD, "--episodes=-1"], r"episodes must be >= 1, got -1"),
+        (["train-continual", f"--config={CL_TINY}", "--methods=bogus", "--output-dir=out"], "unknown methods"),
+    ],
+)
+def test_a_bad_name_or_count_is_refused_before_anything_is_written(tmp_path, monkeypatch, argv, message):
+    monkeypatch.chdir(tmp_path)
+    args = build_parser(argv[0]).parse_args(argv)
+    with pytest.raises(ValueError, match=message):
+        args.func(args)
+    assert list(tmp_path.iterdir()) == []  # no dataset, no output directory
+
+
 def run_lerobot(tool: str, args: list[str], cwd: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
     return subprocess.run([str(BIN / tool), *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)

@@ -3,7 +3,6 @@
 import pytest
 import torch
 
-from lerobot_kvm.envs.configuration_kvm_obsolescence import KvmObsolescenceEnvConfig
 from lerobot_kvm.policy import CodaKvmPolicy
 
 
@@ -31,7 +30,7 @@ def test_an_out_of_range_input_is_named(policy, key, value, message):
         policy.select_action(batch)
 
 
-@pytest.mark.parametrize(("option", "value"), [("episode_length", 0), ("episode_length", -5), ("fps", 0)])
-def test_a_non_positive_env_setting_is_refused(option, value):
-    with pytest.raises(ValueError, match=rf"env.{option} must be a positive integer.*got {value}"):
-        KvmObsolescenceEnvConfig(**{option: value})
+def test_an_unknown_feedback_outcome_is_named(policy):
+    outcomes = r"\('success', 'failure', 'catastrophe'\)"
+    with pytest.raises(ValueError, match=rf"outcome must be one of {outcomes}, got 'bogus'"):
+        policy.kvm_feedback("bogus")
