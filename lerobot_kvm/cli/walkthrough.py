@@ -32,9 +32,13 @@ def check_recording(root: Path, spec: RecordingSpec) -> None:
 
 def run(args: argparse.Namespace) -> int:
     start = time.time()
+    for option in ("steps", "batch_size", "eval_episodes", "episodes"):
+        value = getattr(args, option)
+        if value is not None and value < 1:  # refused before anything is recorded, trained or written
+            raise ValueError(f"--{option.replace('_', '-')} must be >= 1, got {value}")
     out = Path(args.output_dir)
     spec = RecordingSpec.from_json(args.spec)
-    if args.episodes:
+    if args.episodes is not None:
         for item in spec.items:
             item.episodes = args.episodes
     dataset_root = Path(args.dataset_root or f"datasets/{spec.name}")

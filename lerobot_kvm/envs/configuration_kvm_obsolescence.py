@@ -1,5 +1,6 @@
 """LeRobot `EnvConfig` for `--env.type=kvm_obsolescence`."""
 
+import logging
 from dataclasses import dataclass, field
 
 import gymnasium as gym
@@ -11,6 +12,8 @@ from .catalogue import INSTRUCTIONS, VARIANTS, resolve_tasks
 from .sensing import ACTION_NAMES, STATE_NAMES, context_names
 
 OBS_CONTEXT = "observation.context"
+
+logger = logging.getLogger(__name__)
 
 
 @EnvConfig.register_subclass("kvm_obsolescence")
@@ -40,17 +43,32 @@ class KvmObsolescenceEnvConfig(EnvConfig):
     )
 
     def __post_init__(self) -> None:
-        if self.variant not in VARIANTS:
-            raise ValueError(f"env.variant must be one of {VARIANTS}, got {self.variant!r}")
-        if self.instruction not in INSTRUCTIONS:
-            raise ValueError(f"env.instruction must be one of {INSTRUCTIONS}, got {self.instruction!r}")
-        resolve_tasks(self.task or "")  # fail early on unknown names
+        try:
+            self._check_values()
+        except ValueError as err:
+            # LeRobot's command-line parser (draccus) wraps this message in its own traceback: logged first, it is
+            # the first thing the command line says.
+            logger.error("kvm_obsolescence: %s", err)
+            raise
         self.features = {
             ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(len(ACTION_NAMES),)),
             "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(len(STATE_NAMES),)),
             "context": PolicyFeature(type=FeatureType.STATE, shape=(len(context_names()),)),
             "pixels/front": PolicyFeature(type=FeatureType.VISUAL, shape=(self.image_size, self.image_size, 3)),
         }
+
+    def _check_values(self) -> None:
+        """Names, and positive counts and sizes, before LeRobot builds anything from them."""
+        if self.variant not in VARIANTS:
+            raise ValueError(f"env.variant must be one of {VARIANTS}, got {self.variant!r}")
+        if self.instruction not in INSTRUCTIONS:
+            raise ValueError(f"env.instruction must be one of {INSTRUCTIONS}, got {self.instruction!r}")
+        resolve_tasks(self.task or "")  # fail early on unknown names
+        for name in ("episode_length", "fps", "image_size", "render_size"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value <= 0):
+                hint = " (leave it unset for the scenario's own length)" if name == "episode_length" else ""
+                raise ValueError(f"env.{name} must be a positive integer{hint}, got {value!r}")
 
     @property
     def gym_kwargs(self) -> dict:

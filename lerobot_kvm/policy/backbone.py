@@ -106,6 +106,7 @@ class PromptedBackbone(nn.Module):
         dropout: float,
     ):
         super().__init__()
+        self.image_size = (image_shape[1], image_shape[2])  # every camera image is resized to it
         grid_h, grid_w = ConvEncoder.grid_size(image_shape[1], image_shape[2], len(vision_channels))
         self.vision = ConvEncoder(vision_channels, dim_model)
         self.row_embed = nn.Parameter(torch.randn(grid_h, 1, dim_model) * 0.02)
@@ -121,11 +122,18 @@ class PromptedBackbone(nn.Module):
         self.final_norm = nn.LayerNorm(dim_model)
         self.action_head = nn.Linear(dim_model, action_dim)
 
+    def resize(self, image: Tensor) -> Tensor:
+        """[B, 3, H, W] at the backbone's input size (antialiased, so a downscaled image does not alias)."""
+        if tuple(image.shape[-2:]) == self.image_size:
+            return image
+        return F.interpolate(image, size=self.image_size, mode="bilinear", antialias=True, align_corners=False)
+
     def forward(self, images: list[Tensor], state: Tensor, context: Tensor, prompts: Tensor | None) -> Tensor:
-        """images: per camera [B, 3, H, W]; state [B, S]; context [B, C]; prompts [L_p, B, Lp, D] for the
-        first L_p layers (or None). Returns normalized actions [B, chunk, action_dim]."""
+        """images: per camera [B, 3, H, W], any H, W; state [B, S]; context [B, C]; prompts [L_p, B, Lp, D] for
+        the first L_p layers (or None). Returns normalized actions [B, chunk, action_dim]."""
         batch = state.shape[0]
         n_cams = len(images)
+        images = [self.resize(image) for image in images]
         pos = (self.row_embed + self.col_embed).flatten(0, 1)  # [h*w, D]
         vis = self.vision(torch.cat(images, dim=0)).unflatten(0, (n_cams, batch))  # [cams, B, h*w, D]
         vis = vis + pos + self.camera_embed[:n_cams, None]

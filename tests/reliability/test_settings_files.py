@@ -1,6 +1,7 @@
 """A faulty recording spec, sequence or benchmark config is refused with the file and the key, nothing else."""
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -36,6 +37,7 @@ def test_malformed_json_names_the_file(tmp_path, reader):
         ({**SEQUENCE, "taks": []}, r"settings.json: unknown keys \['taks'\]"),
         ({**SEQUENCE, "tasks": [{"scenario": "egg_vs_stone", "varient": "prior"}]}, r"tasks\[0\]: unknown keys"),
         ({**SEQUENCE, "methods": [{"policy": "coda_kvm"}]}, r"methods\[0\]: .*name"),
+        ({**SEQUENCE, "methods": [{"name": "m", "policy": "coda_kvm", "lr": 1}]}, r"methods\[0\]: unknown keys"),
         ({**SEQUENCE, "tasks": [{"scenario": "eggs"}]}, r"tasks\[0\]: unknown scenario 'eggs'"),
         ({**SEQUENCE, "tasks": {"scenario": "egg_vs_stone"}}, r"'tasks' must be a list"),
     ],
@@ -52,6 +54,12 @@ def test_recording_spec_faults_name_the_key(tmp_path):
     }
     with pytest.raises(ValueError, match=r"items\[0\]: unknown keys \['epsiodes'\]"):
         RecordingSpec.from_json(_write(tmp_path, spec))
+
+
+def test_an_unknown_benchmark_key_is_named(tmp_path):
+    quick = json.loads((Path(__file__).resolve().parents[2] / "configs" / "benchmark_quick.json").read_text())
+    with pytest.raises(ValueError, match=r"settings.json: unknown keys \['typo_key'\]"):
+        BenchmarkConfig.from_json(_write(tmp_path, {**quick, "typo_key": 1}))
 
 
 def test_a_missing_file_is_named(tmp_path):
