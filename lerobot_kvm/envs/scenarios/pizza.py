@@ -40,7 +40,7 @@ PEP_RGB = np.array([0.70, 0.15, 0.10])
 # after 27 and a switch to the slide still rescues it after 25.
 LIFTOFF = 0.03
 LIFTOFF_STEP = 0.002
-LIFTED = 0.002  # m above its resting height: the crust is off the table
+LIFTED = 0.002  # m above its resting height beyond which the crust hangs in the pinch (the slide raises it this much)
 HOT_BENDING = (0.002, 0.002)  # stiffness N m/rad, damping N m s/rad of the dough's bending hinges
 # Bending range of each hinge (rad): cold dough barely bends, hot dough folds freely.
 BEND_RANGE = {"prior": 0.01, "shifted": 2.8}
@@ -53,7 +53,7 @@ DOUGH_BITS = 'contype="4" conaffinity="3"'
 class CrustPinchExpert(GraspLiftExpert):
     """Pinch the crust, then either lift-carry-lower it (`lift` > 0) or slide it along the table (`lift` == 0).
 
-    The lift starts slowly (`liftoff` m at `liftoff_step` m per step): the first centimetres are where the wrist
+    The lift starts slowly (`liftoff` m at `LIFTOFF_STEP` m per step): the first centimetres are where the wrist
     feels whether the slice cantilevers or folds, so they take long enough for that to show before the slice is
     high enough to shed its toppings.
     """
