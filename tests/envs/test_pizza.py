@@ -47,3 +47,11 @@ def test_hot_slice_twists_the_wrist_less_once_lifted():
             raising.append(abs(obs["context"][torque_y]))
         moment[variant] = np.mean(raising)
     assert moment["prior"] > 1.5 * moment["shifted"]
+
+
+def test_slide_taking_over_a_lifted_hot_slice_lowers_it_and_slides_it():
+    """Rule 3's rescue: the slide, taking over once the hot slice hangs off the pinch, sets it back down first."""
+    env = KvmObsolescenceEnv(task="pizza")
+    takeover = 48  # 18 steps into the lift: the crust 7 cm up, the dough bent by almost a radian
+    hot = run_episode(env, "shifted", "pinch_lift", 0, switch=(takeover, "supported_slide"))
+    assert hot.success and not hot.catastrophe_kind

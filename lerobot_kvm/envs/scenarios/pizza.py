@@ -6,7 +6,8 @@ slice cantilevers out of the pinch and the toppings ride along. Hot, the same hi
 lifted by the crust, the front half folds down and the toppings slide off onto the table (a
 "spill"). Sliding the slice to the paper with the crust pinched and the dough supported by the
 table moves both intact. Only the hidden bending range of the hinges changes between variants; the
-wrist torque of the lifted slice shows the difference (rule 3).
+wrist torque of the lifted slice shows the difference (rule 3) during a slow lift-off, well before the hot slice
+hangs steeply enough to shed its toppings, and a slide that takes over lowers a lifted slice back onto the table.
 """
 
 from functools import partial
@@ -15,7 +16,7 @@ import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
-from ..experts import GraspLiftExpert
+from ..experts import GraspLiftExpert, touching
 from ..physics import Physics, set_free_body_pose
 from ..scenario import Scenario, StepOutcome, register_scenario
 from ..scene import SceneParts
@@ -34,6 +35,12 @@ GOAL_TOL = 0.02
 CRUST_RGB = np.array([0.78, 0.56, 0.30])
 CHEESE_RGB = np.array([0.96, 0.80, 0.38])
 PEP_RGB = np.array([0.70, 0.15, 0.10])
+# The lift's first 3 cm at 2 mm per step (15 steps; 1 cm per step before): the hot slice's light wrist torque leaves
+# the cold slices' envelope 7 steps into the lift (seed 0 and 1, 20 episodes), while its toppings only reach the table
+# after 27 and a switch to the slide still rescues it after 25.
+LIFTOFF = 0.03
+LIFTOFF_STEP = 0.002
+LIFTED = 0.002  # m above its resting height beyond which the crust hangs in the pinch (the slide raises it this much)
 HOT_BENDING = (0.002, 0.002)  # stiffness N m/rad, damping N m s/rad of the dough's bending hinges
 # Bending range of each hinge (rad): cold dough barely bends, hot dough folds freely.
 BEND_RANGE = {"prior": 0.01, "shifted": 2.8}
@@ -44,12 +51,27 @@ DOUGH_BITS = 'contype="4" conaffinity="3"'
 
 
 class CrustPinchExpert(GraspLiftExpert):
-    """Pinch the crust, then either lift-carry-lower it (`lift` > 0) or slide it along the table (`lift` == 0)."""
+    """Pinch the crust, then either lift-carry-lower it (`lift` > 0) or slide it along the table (`lift` == 0).
 
-    def __init__(self, grip: float, lift: float, carry_step: float) -> None:
-        super().__init__("crust", grip, lift)
+    The lift starts slowly (`liftoff` m at `LIFTOFF_STEP` m per step): the first centimetres are where the wrist
+    feels whether the slice cantilevers or folds, so they take long enough for that to show before the slice is
+    high enough to shed its toppings.
+    """
+
+    def __init__(self, grip: float, lift: float, carry_step: float, liftoff: float = 0.0) -> None:
+        super().__init__("crust", grip, lift, liftoff=liftoff, liftoff_step=LIFTOFF_STEP)
         self.carry_step = carry_step
         self.stage = "raise"
+
+    def resume(self, physics: Physics) -> None:
+        """A crust already lifted by another skill stays pinched and is first lowered back onto the table (the
+        slide's height); otherwise as any grasp."""
+        crust_z = float(physics.data.body("crust").xpos[2])
+        if touching(physics) and crust_z > CRUST[2] + LIFTED:
+            pos = physics.sensors.arm_position(physics.data)[:3]
+            self.phase, self.anchor, self.base = "lift", pos.copy(), pos[2] - (crust_z - CRUST[2])
+        else:
+            super().resume(physics)
 
     def after_grasp(self, physics: Physics, grasp_z: float) -> np.ndarray:
         goal = self.anchor.copy()
@@ -63,7 +85,9 @@ class CrustPinchExpert(GraspLiftExpert):
                 self.stage = "lower"
         else:
             goal[2] = self.base
-        step = 0.01 if self.stage in ("raise", "lower") else self.carry_step
+        step = self.carry_step if self.stage == "carry" else self.lift_step
+        if self.stage == "raise" and self.anchor[2] < self.base + self.liftoff:
+            step = self.liftoff_step
         return self.anchor + np.clip(goal - self.anchor, -step, step)
 
 
@@ -94,7 +118,7 @@ def _segments(i: int) -> str:
 class Pizza(Scenario):
     info = SCENARIO_INFOS["pizza"]
     skills = {
-        "pinch_lift": partial(CrustPinchExpert, grip=0.5, lift=0.18, carry_step=0.01),
+        "pinch_lift": partial(CrustPinchExpert, grip=0.5, lift=0.18, carry_step=0.01, liftoff=LIFTOFF),
         "supported_slide": partial(CrustPinchExpert, grip=0.5, lift=0.0, carry_step=0.005),
     }
 
