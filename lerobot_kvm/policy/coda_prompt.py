@@ -222,17 +222,35 @@ class CodaPromptPool(nn.Module):
         return torch.einsum("lbmd,lmd->lbm", attended, keys)
 
     @torch.no_grad()
-    def skill_relevance(self, query: Tensor) -> Tensor:
-        """alpha_i [B, n_skills] in (0, 1]: how close the query is to what skill i was trained on (the CL core's
-        relevance, Algorithm 1 line 5): exp((s_i - 1) / T) with s_i the best cosine between the query and the skill's
-        prototypes. A skill that has seen no query yet has alpha 1: nothing says it does not apply."""
+    def propose(self, query: Tensor) -> tuple[Tensor, Tensor]:
+        """The CL core's proposal (Algorithm 1 line 5) for queries [B, Dq]: (relevance alpha [B, S], anchors [B, S,
+        Dq]). Skill i's anchor is its prototype nearest to the query, the task it learned that this one is closest
+        to: the skill runs as it was trained there (`anchored_alphas`). alpha_i = exp((s_i - 1) / T), s_i that
+        prototype's cosine with the query. A skill that has seen no query yet is anchored at the query itself with
+        alpha 1: nothing says it does not apply."""
         n = self.n_skills
         counts = self.prototype_counts[:n]  # [S, K]
-        protos = F.normalize(self.prototypes[:n], dim=-1)  # [S, K, Dq]
-        cos = torch.einsum("bd,skd->bsk", F.normalize(query, dim=-1), protos.to(query))
-        best = cos.masked_fill(counts.unsqueeze(0) == 0, -1.0).amax(-1)  # [B, S]
-        best = torch.where((counts > 0).any(-1).unsqueeze(0), best, torch.ones_like(best))
-        return torch.exp((best - 1.0) / RELEVANCE_TEMPERATURE)
+        protos = self.prototypes[:n].to(query)  # [S, K, Dq]
+        cos = torch.einsum("bd,skd->bsk", F.normalize(query, dim=-1), F.normalize(protos, dim=-1))
+        best, slot = cos.masked_fill(counts.unsqueeze(0) == 0, -2.0).max(-1)  # [B, S]
+        seen = (counts > 0).any(-1).unsqueeze(0)
+        best = torch.where(seen, best, torch.ones_like(best))
+        anchors = protos[torch.arange(n, device=query.device).unsqueeze(0), slot]  # [B, S, Dq]
+        anchors = torch.where(seen.unsqueeze(-1), anchors, query.unsqueeze(1).expand_as(anchors))
+        return torch.exp((best - 1.0) / RELEVANCE_TEMPERATURE), anchors
+
+    def skill_relevance(self, query: Tensor) -> Tensor:
+        """alpha_i [B, n_skills] in (0, 1]: how close the query is to what skill i was trained on (see `propose`)."""
+        return self.propose(query)[0]
+
+    def anchored_alphas(self, anchors: Tensor) -> Tensor:
+        """alpha [n_layers, B, M_visible]: each skill's components read with that skill's own query, anchors [B, S,
+        Dq] (one query per row and skill); with every anchor the same query, `component_alphas` of it."""
+        n = anchors.shape[1]
+        keys = F.normalize(self._visible("keys", n), dim=-1).unflatten(1, (n, self.per_task))  # [L, S, m, Dq]
+        attn = self._visible("attn", n).unflatten(1, (n, self.per_task))
+        attended = F.normalize(torch.einsum("bsd,lsmd->lbsmd", anchors, attn), dim=-1)
+        return torch.einsum("lbsmd,lsmd->lbsm", attended, keys).flatten(2)
 
     def skill_prompts(self, query: Tensor) -> Tensor:
         """P_i [n_layers, B, n_skills, Lp, D] = sum_{m in skill i} alpha_m P_m: each skill's own prompt."""

@@ -413,10 +413,10 @@ class CodaKvmPolicy(PreTrainedPolicy):
         the KVM disabled keeps every v = 1 (telemetry None in both cases)."""
         batch_size = self._check_observation(batch)
         query = self.encode_query(self._tasks(batch, batch_size))
-        alphas = self.pool.component_alphas(query)
+        relevance, anchors = self.pool.propose(query)
+        alphas = self.pool.anchored_alphas(anchors)  # each skill as it was trained on its nearest task
         if skill_weights is not None:
             return alphas, skill_weights, None
-        relevance = self.pool.skill_relevance(query)
         if not self.config.kvm.enabled:
             everyone = torch.ones(self.n_skills, dtype=torch.bool, device=relevance.device)
             return (

@@ -174,3 +174,26 @@ def test_skill_table_overflow_is_an_error() -> None:
 def test_orthogonality_penalty_is_zero_right_after_gram_schmidt() -> None:
     pool = make_pool(3)
     assert pool.ortho_penalty().item() < 1e-10
+
+
+def test_each_skill_reads_its_components_with_its_nearest_prototype() -> None:
+    pool = make_pool(3)
+    a, b, c = torch.randn(3, 16)
+    pool.observe_queries(torch.stack([a, b]), skill=0)
+    pool.observe_queries(c.unsqueeze(0), skill=1)  # skill 2 has seen nothing: anchored at the query itself
+    query = torch.stack([a + 0.1 * b, b])
+    relevance, anchors = pool.propose(query)
+    assert torch.equal(relevance, pool.skill_relevance(query))
+    nearest_0 = [a, b]  # row 0 is nearest to a, row 1 is b itself
+    for row in range(2):
+        torch.testing.assert_close(anchors[row, 0], nearest_0[row])
+        torch.testing.assert_close(anchors[row, 1], c)
+        assert torch.equal(anchors[row, 2], query[row])
+    alphas = pool.anchored_alphas(anchors)  # [L, B, M]: skill s's block = its components read at its anchor
+    for row in range(2):
+        for skill in range(3):
+            block = slice(2 * skill, 2 * skill + 2)
+            expected = pool.component_alphas(anchors[row, skill].unsqueeze(0))[:, 0, block]
+            torch.testing.assert_close(alphas[:, row, block], expected)
+    # one anchor for every skill: the plain CODA alphas of that query
+    torch.testing.assert_close(pool.anchored_alphas(query.unsqueeze(1).expand(-1, 3, -1)), pool.component_alphas(query))
