@@ -14,8 +14,8 @@ when effort rises without motion it stops, lifts the drawer front and pulls agai
 The old skill pulls steadily (3 mm per control step), as one opens an unknown drawer: on the stuck
 one the pull builds by about 4 N a step, so the wrist feels it at the first pull step and the knob
 takes damage ten steps later — time for a supervisor to hand over (check-suite, 20 seeds at seeds 0
-and 1: detection at step 33, last rescuing takeover 42, harm 43). A 1 cm step built 15 N a step and
-left four steps between detection and damage.
+and 1: detection at step 33, last rescuing takeover 42, harm 43). A 1 cm step built about 13 N a step
+and left four steps between detection and the last takeover that still rescued.
 """
 
 from functools import partial
