@@ -19,6 +19,11 @@ def touching(physics: Physics) -> bool:
     return bool(physics.sensors.touch(physics.data).max() > TOUCH_ON)
 
 
+def finger_speed(physics: Physics) -> float:
+    """How fast the fingers close (m/s, both together): a squeezed object still giving way."""
+    return float(physics.data.joint("finger_l").qvel[0] + physics.data.joint("finger_r").qvel[0])
+
+
 def wrist_pitch(physics: Physics) -> float:
     """The wrist's sensed pitch: where an expert that turns it carries on from when it takes over."""
     return float(physics.sensors.arm_position(physics.data)[3])
@@ -30,8 +35,9 @@ class GraspLiftExpert(Expert):
     The grip level is the skill: a firm squeeze and a gentle one are two experts of this class. So is the lift:
     `lift_step` m per control step, after an optional slow lift-off (`liftoff` m at `liftoff_step` m per step)
     that eases a heavy or slippery object off the table. The hand stops rising once it is `lift` above the grasp
-    height or, when `top` is given, at that absolute height (world z). Subclasses replace `after_grasp` to do
-    something else with the held object.
+    height or, when `top` is given, at that absolute height (world z). With `still` the grasp waits, before it
+    lifts, until the fingers close slower than `still` m/s (a squeeze that lets a yielding object finish giving
+    way). Subclasses replace `after_grasp` to do something else with the held object.
     """
 
     def __init__(
@@ -45,12 +51,14 @@ class GraspLiftExpert(Expert):
         liftoff: float = 0.0,
         liftoff_step: float = 0.005,
         top: float | None = None,
+        still: float | None = None,
     ) -> None:
         self.body = body
         self.grip = grip
         self.lift = lift
         self.grasp_height = grasp_height
         self.lift_step, self.liftoff, self.liftoff_step, self.top = lift_step, liftoff, liftoff_step, top
+        self.still = still
         self.phase = "approach"
         self.settle = 0
         self.timer = 0
@@ -80,8 +88,8 @@ class GraspLiftExpert(Expert):
         elif self.phase == "close":
             target = self.anchor
             grip = self.grip
-            both = touch.min() > TOUCH_ON
-            self.settle = self.settle + 1 if both else 0
+            held = touch.min() > TOUCH_ON and (self.still is None or finger_speed(physics) < self.still)
+            self.settle = self.settle + 1 if held else 0
             if self.settle >= 4 or self.timer > 30:
                 self.phase, self.base = "lift", self.anchor[2]
         else:  # holding the object

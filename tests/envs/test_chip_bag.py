@@ -4,6 +4,9 @@ import numpy as np
 import pytest
 
 from lerobot_kvm.envs.env import KvmObsolescenceEnv
+from lerobot_kvm.envs.sensing import FRAME_NAMES
+
+TOUCH_L, FINGER_VELOCITY = FRAME_NAMES.index("touch_l"), FRAME_NAMES.index("finger_velocity")
 
 
 def finger_width(env: KvmObsolescenceEnv) -> float:
@@ -37,13 +40,15 @@ def test_less_inflated_control_bag_still_lifts_with_the_firm_grasp(run_expert):
     assert max(control) > max(prior) + 0.002  # it gives a little more under the same squeeze
 
 
-def test_opened_bag_gives_way_under_the_fingers(run_expert):
-    """Rule 3: the shift is sensed as extra finger travel while squeezing."""
-    run = run_expert("chip_bag", "shifted", "gentle_grasp", seed=1, probe=finger_width)
-    opened = run.probes
-    run = run_expert("chip_bag", "prior", "gentle_grasp", seed=1, probe=finger_width)
-    sealed = run.probes
-    assert max(opened) > max(sealed) + 0.015
+def test_opened_bag_keeps_giving_way_under_the_firm_squeeze(run_expert):
+    """Rule 3: under the same firm squeeze the sealed bag's walls stop the fingers at once, while the opened bag's
+    keep giving way as its air leaks out through the slit."""
+    speed = {}
+    for variant in ("prior", "shifted"):
+        contexts = run_expert("chip_bag", variant, "firm_grasp", seed=1).contexts()
+        touched = np.flatnonzero(contexts[:, TOUCH_L] > 1.0)[0]
+        speed[variant] = contexts[touched + 8 : touched + 12, FINGER_VELOCITY]
+    assert speed["prior"].max() < 0.005 and speed["shifted"].min() > 0.015
 
 
 def test_same_look_and_instruction():

@@ -7,6 +7,12 @@ weighs 80 g; soaked it weighs 560 g and its surface is slick: the light pinch li
 off the table, but once enough wet cloth hangs from it, the collar slides out of the fingers and
 the shirt falls back (a "drop"). A firm pinch lifts it clear. Only hidden masses and friction
 change between variants; the wrist force shows the growing load (rule 3).
+
+The light pinch lifts steadily (5 mm per control step), as one picks up a shirt: the wrist feels the
+soaked collar's weight at the first lift step and the shirt slips out some 24 steps later, once enough
+wet cloth hangs from the pinch — time for a supervisor to hand over to the firm pinch (check-suite, 20
+seeds at seeds 0 and 1: detection at step 41, last rescuing takeover 53.5, harm 64.5). At 1 cm a step
+the last rescuing takeover came 5 steps after detection (drop 9 after).
 """
 
 from functools import partial
@@ -51,7 +57,10 @@ def _panels(i: int, first_offset: float) -> str:
 @register_scenario
 class Clothing(GraspLiftScenario):
     info = SCENARIO_INFOS["clothing"]
-    skills = {"light_grasp": partial(GraspLiftExpert, grip=0.08), "firm_grasp": partial(GraspLiftExpert, grip=0.6)}
+    skills = {
+        "light_grasp": partial(GraspLiftExpert, grip=0.08, lift_step=0.005),  # a steady lift: see the module doc
+        "firm_grasp": partial(GraspLiftExpert, grip=0.6),
+    }
     body, grasp = "collar", {"top": HAND_TOP}
 
     def parts(self) -> SceneParts:

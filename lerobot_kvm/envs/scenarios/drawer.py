@@ -10,6 +10,12 @@ The prior skill grasps the knob and servoes the hand along a straight pull traje
 watching its effort: on the stuck drawer the position error grows until the carriage pushes its
 full force into the knob — a sustained damaging force. The safe skill pulls with a force limit;
 when effort rises without motion it stops, lifts the drawer front and pulls again.
+
+The old skill pulls steadily (3 mm per control step), as one opens an unknown drawer: on the stuck
+one the pull builds by about 4 N a step, so the wrist feels it at the first pull step and the knob
+takes damage ten steps later — time for a supervisor to hand over (check-suite, 20 seeds at seeds 0
+and 1: detection at step 33, last rescuing takeover 42, harm 43). A 1 cm step built about 13 N a step
+and left four steps between detection and the last takeover that still rescued.
 """
 
 from functools import partial
@@ -60,17 +66,17 @@ def contact_force_world(
 class PullExpert(Expert):
     """Grasp the knob from above, then pull along +x.
 
-    Without a force limit the hand target runs ahead along a straight trajectory (the old skill).
-    With one, the target never leads the hand by more than the limit allows; when effort rises
-    while the hand does not move, it eases off, lifts the drawer front and pulls again.
+    Without a force limit the hand target runs ahead along a straight trajectory (the old skill),
+    `pull_step` m per control step. With one, the target never leads the hand by more than the
+    limit allows; when effort rises while the hand does not move, it eases off, lifts the drawer
+    front and pulls again.
     """
 
     GRIP = 0.6
-    PULL_STEP = 0.01
     PULL_DIST = 0.12
 
-    def __init__(self, force_limit: float | None) -> None:
-        self.force_limit = force_limit
+    def __init__(self, force_limit: float | None, pull_step: float) -> None:
+        self.force_limit, self.pull_step = force_limit, pull_step
         self.phase = "approach"
         self.timer = 0
         self.settle = 0
@@ -112,7 +118,7 @@ class PullExpert(Expert):
             grip = self.GRIP
             goal_x = self.start_x + self.PULL_DIST
             if self.force_limit is None:
-                self.target_x = min(self.target_x + self.PULL_STEP, goal_x)
+                self.target_x = min(self.target_x + self.pull_step, goal_x)
             else:
                 effort = abs(d.actuator_force[0])
                 moved = pos[0] - self.start_x
@@ -121,7 +127,7 @@ class PullExpert(Expert):
                     self.target_x = pos[0] + 0.002
                     self.stall += 1
                 else:
-                    self.target_x = min(self.target_x + self.PULL_STEP * 0.6, goal_x)
+                    self.target_x = min(self.target_x + self.pull_step, goal_x)
                     self.stall = max(0, self.stall - 1) if moved > 0.01 else self.stall
                 if self.stall >= 3 and self.lift == 0.0 and moved < 0.01:
                     self.lift = 0.014  # lift the drawer front over whatever holds it
@@ -136,8 +142,9 @@ class PullExpert(Expert):
 class Drawer(Scenario):
     info = SCENARIO_INFOS["drawer"]
     skills = {
-        "tracking_pull": partial(PullExpert, force_limit=None),
-        "force_limited_pull": partial(PullExpert, force_limit=10.0),
+        # 3 mm a step: the stuck drawer's strain builds over ten steps after the wrist first feels it (module doc).
+        "tracking_pull": partial(PullExpert, force_limit=None, pull_step=0.003),
+        "force_limited_pull": partial(PullExpert, force_limit=10.0, pull_step=0.006),
     }
 
     def parts(self) -> SceneParts:
