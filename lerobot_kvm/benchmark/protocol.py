@@ -35,12 +35,15 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
+from torch import Tensor
 from tqdm import tqdm
 
 from ..datasets.json_config import build, read_json
 from ..envs.catalogue import SCENARIO_INFOS, scenario_info
 from ..envs.env import KvmObsolescenceEnv
+from ..evaluation.rescue import Envelope
 from ..evaluation.rollouts import expert_rollout, policy_processors, run_attempt
 from ..evaluation.validity_check import CONTEXT, shift_step
 from ..kvm.configuration import KvmConfig
@@ -58,6 +61,13 @@ KVM_METHODS: dict[str, dict[str, Any]] = {
     "no_energy_model": {"risk_model": "bce"},
 }
 PEER_METHODS = ("act",)
+# Diagnostic rows on the `coda_kvm` pool checkpoint, KVM off, told what no method may know (the variant, where the
+# shift shows): privileged, reported apart and never counted as methods. `oracle_skill` forces the scenario's safe
+# skill from the first step of a shifted episode (its prior skill elsewhere); `oracle_switch` forces the prior skill
+# until the sensed context first leaves the prior variant's envelope, then the safe skill. They bound what any
+# supervisor could reach with this pool and separate detection losses from switching losses.
+ORACLE_METHODS = ("oracle_skill", "oracle_switch")
+ENVELOPE_RUNS = 10  # prior-variant episodes of the prior skill that make `oracle_switch`'s envelope (per scenario)
 CONTROL_KINDS = ("prior", "control")
 # Settings an output directory may change between invocations: which methods and runs (each method's runs are
 # kept apart), the plots drawn, and the name; the pool's own settings are checked by its sequence run.
@@ -89,9 +99,10 @@ class BenchmarkConfig:
     def __post_init__(self) -> None:
         if not self.methods or not self.scenarios:
             raise ValueError(f"a benchmark needs methods and scenarios, got {self.methods} and {self.scenarios}")
-        unknown = [m for m in self.methods if m not in KVM_METHODS and m not in PEER_METHODS]
+        known = [*KVM_METHODS, *PEER_METHODS, *ORACLE_METHODS]
+        unknown = [m for m in self.methods if m not in known]
         if unknown:
-            raise ValueError(f"unknown methods {unknown}; known: {[*KVM_METHODS, *PEER_METHODS]}")
+            raise ValueError(f"unknown methods {unknown}; known: {known}")
         missing = [s for s in self.scenarios if s not in SCENARIO_INFOS]
         if missing:
             raise ValueError(f"unknown scenarios {missing}; known: {sorted(SCENARIO_INFOS)}")
@@ -139,6 +150,9 @@ def load_policy(
     if method in KVM_METHODS:
         policy_class = CodaKvmPolicy
         config.kvm = replace(config.kvm, **{**(kvm or {}), **KVM_METHODS[method]})
+    elif method in ORACLE_METHODS:
+        policy_class = CodaKvmPolicy
+        config.kvm = replace(config.kvm, enabled=False)
     else:
         from lerobot.policies.act.modeling_act import ACTPolicy as policy_class
     policy = policy_class.from_pretrained(weights or checkpoint, config=config)
@@ -151,8 +165,11 @@ def load_policy(
 REFERENCE_METHOD = "coda_kvm"
 
 
-def feedback_budget(method: str, runs: list[dict[str, Any]], cfg: "BenchmarkConfig") -> dict[str, Any]:
-    """What one method spent on its feedbacks: how many, the gradient steps each counted, and the step sizes."""
+def feedback_budget(method: str, runs: list[dict[str, Any]], cfg: "BenchmarkConfig") -> dict[str, Any] | None:
+    """What one method spent on its feedbacks: how many, the gradient steps each counted, and the step sizes (None
+    for a diagnostic row, which learns nothing)."""
+    if method in ORACLE_METHODS:
+        return None
     steps = sorted({f["gradient_steps"] for run in runs for f in run["feedback"]})
     if uses_validity(method):
         rates = {"kvm_lr": FEEDBACK_LR, "new_skill_lr": FOCUSED_LR}
@@ -167,6 +184,25 @@ def feedback_budget(method: str, runs: list[dict[str, Any]], cfg: "BenchmarkConf
 
 def uses_validity(method: str) -> bool:
     return method in KVM_METHODS and KVM_METHODS[method].get("enabled", True)
+
+
+def on_kvm_pool(method: str) -> bool:
+    """Whether the method runs from the `coda_kvm` pool checkpoint (every row but the peers')."""
+    return method in KVM_METHODS or method in ORACLE_METHODS
+
+
+class SwitchOnExit:
+    """`oracle_switch`'s skill weights: the prior skill's until the step whose raw sensed context first leaves the
+    envelope, the safe skill's from that step on (`switch_step`)."""
+
+    def __init__(self, envelope: Envelope, prior: Tensor, safe: Tensor) -> None:
+        self.envelope, self.prior, self.safe = envelope, prior, safe
+        self.switch_step: int | None = None
+
+    def __call__(self, step: int, context: np.ndarray) -> Tensor:
+        if self.switch_step is None and self.envelope.outside(step, context):
+            self.switch_step = step
+        return self.prior if self.switch_step is None else self.safe
 
 
 def finetune(policy: Any, demo: dict[str, Any], steps: int, lr: float, batch_size: int) -> dict[str, float]:
@@ -278,17 +314,30 @@ def skill_index(policy: Any, scenario: str, skill: str) -> int | None:
     return skill_by_name(policy, f"{scenario}.{skill}")
 
 
+def learned_skill(policy: Any, sequence: SequenceConfig, scenario: str, skill: str) -> int | None:
+    """The pool's skill that learned `scenario`'s `skill` ("prior" or "safe") on its prior variant: a stage's own
+    skill, or the pretraining skill (0); None when the pool never learned it."""
+    expert = getattr(scenario_info(scenario), f"{skill}_skill")
+    index = skill_index(policy, scenario, expert)
+    if index is None and any((t.scenario, t.skill) == (scenario, skill) for t in sequence.pretrain_tasks):
+        index = 0
+    return index
+
+
 def uncovered_scenarios(sequence: SequenceConfig, scenarios: Sequence[str]) -> list[str]:
-    """Benchmark scenarios whose prior skill the pool never learned as the challenge asks for it: the prior
-    expert on the prior variant under the variant's own instruction (in a stage or in pretraining). Their
-    challenge tests no obsolete knowledge, and the KVM context, which includes the instruction, is novel there
-    from the first step."""
-    learned = {
-        t.scenario
-        for t in [*sequence.tasks, *sequence.pretrain_tasks]
-        if (t.variant, t.skill, t.instruction) == ("prior", "prior", "variant")
-    }
-    return [s for s in scenarios if s not in learned]
+    """Benchmark scenarios the pool does not cover: it never learned the prior skill as the challenge asks for it
+    (the prior expert on the prior variant under the variant's own instruction), so the challenge tests no obsolete
+    knowledge, or it holds no safe alternative to hand control to (the safe expert on the prior variant, asked for
+    by the instruction naming the strategy: learned before any shifted frame)."""
+    tasks = [*sequence.tasks, *sequence.pretrain_tasks]
+    prior = {t.scenario for t in tasks if (t.variant, t.skill, t.instruction) == ("prior", "prior", "variant")}
+    safe = {t.scenario for t in tasks if (t.variant, t.skill) == ("prior", "safe")}
+    return [s for s in scenarios if s not in prior or s not in safe]
+
+
+def _switch_field(oracle: Any) -> dict[str, Any]:
+    """`oracle_switch`'s switch step in its episode record (None: the context never left the envelope)."""
+    return {"switch_step": oracle.switch_step} if isinstance(oracle, SwitchOnExit) else {}
 
 
 def _from_step(demo: dict[str, Any], start: int) -> dict[str, Any]:
@@ -322,7 +371,7 @@ class Benchmark:
         self.sequence = SequenceConfig.from_json(self.sequence_path)
         if config.dataset_root:
             self.sequence.dataset_root = config.dataset_root
-        needed = [config.kvm_method] if any(m in KVM_METHODS for m in config.methods) else []
+        needed = [config.kvm_method] if any(on_kvm_pool(m) for m in config.methods) else []
         if "act" in config.methods:
             needed.append(config.act_method)
         known = {m.name for m in self.sequence.methods}
@@ -330,6 +379,7 @@ class Benchmark:
         if missing:
             raise ValueError(f"{config.sequence} has no methods {missing} (it has {sorted(known)})")
         self.pool_methods = needed
+        self._envelopes: dict[tuple[int, str], Envelope] = {}
 
     # ------------------------------------------------------------------ pool
     def grow_pool(self) -> tuple[dict[str, Any], dict[str, Path]]:
@@ -425,10 +475,13 @@ class Benchmark:
                 if probe is not None:
                     out["probes"].append(probe)
             challenge = {**base, "kind": "challenge", "seed": seed}
-            first = run_attempt(policy, env, pre, post, seed=seed)
+            oracle = self._oracle(method, policy, pre, post, base, "shifted")
+            first = run_attempt(policy, env, pre, post, seed=seed, skill_weights=oracle)
             ref_step = len(reference["task"]) if ref_outcome == "catastrophe" else None
             out["records"].append(
-                {**challenge, "attempt": 1, "reference_catastrophe_step": ref_step} | episode_fields(first)
+                {**challenge, "attempt": 1, "reference_catastrophe_step": ref_step}
+                | episode_fields(first)
+                | _switch_field(oracle)
             )
             if first["outcome"] == "success":
                 out["records"][-1]["pruned"] = self._report(method, policy, first)
@@ -439,10 +492,12 @@ class Benchmark:
             out["feedback_time_s"] = out.get("feedback_time_s", 0.0) + time.time() - started
             out["feedback"].append({**base, "demonstration": demo_outcome, **feedback})
             second_seed = seed + SEED_OFFSETS["attempt_2"]
-            second = run_attempt(policy, env, pre, post, seed=second_seed)
+            oracle = self._oracle(method, policy, pre, post, base, "shifted")
+            second = run_attempt(policy, env, pre, post, seed=second_seed, skill_weights=oracle)
             out["records"].append(
                 {**challenge, "attempt": 2, "seed": second_seed, "reference_catastrophe_step": None}
                 | episode_fields(second)
+                | _switch_field(oracle)
             )
             out["records"][-1]["pruned"] = self._report(method, policy, second)
         finally:
@@ -487,12 +542,55 @@ class Benchmark:
                 continue
             env = self._env(base["scenario"], kind)
             try:
-                result = run_attempt(policy, env, pre, post, seed=seed + SEED_OFFSETS[kind])
+                oracle = self._oracle(base["method"], policy, pre, post, base, kind)
+                result = run_attempt(policy, env, pre, post, seed=seed + SEED_OFFSETS[kind], skill_weights=oracle)
             finally:
                 env.close()
             policy.reset()  # the control's trace is not kept for any later feedback
             record = {**base, "kind": kind, "attempt": 1, "seed": seed + SEED_OFFSETS[kind]}
             out["records"].append(record | episode_fields(result) | {"pruned": []})
+
+    def _oracle(
+        self, method: str, policy: Any, pre: Any, post: Any, base: dict[str, Any], variant: str
+    ) -> Tensor | SwitchOnExit | None:
+        """The skill weights a diagnostic row forces on one episode (None for a method, or where the pool lacks the
+        scenario's prior or safe skill: the core then routes)."""
+        if method not in ORACLE_METHODS:
+            return None
+        prior = learned_skill(policy, self.sequence, base["scenario"], "prior")
+        safe = learned_skill(policy, self.sequence, base["scenario"], "safe")
+        if prior is None or safe is None:
+            return None
+        prior_w, safe_w = policy.pool.own_weights(prior, 1), policy.pool.own_weights(safe, 1)
+        if variant != "shifted":
+            return prior_w
+        if method == "oracle_skill":
+            return safe_w
+        return SwitchOnExit(self._envelope(policy, pre, post, base, prior_w), prior_w, safe_w)
+
+    def _envelope(self, policy: Any, pre: Any, post: Any, base: dict[str, Any], prior: Tensor) -> Envelope:
+        """The prior variant's sensed-context envelope under the pool's prior skill, from `ENVELOPE_RUNS` episodes
+        on seeds of their own (pass 0's, which no challenge or control uses); built once per run and scenario."""
+        key = (base["run"], base["scenario"])
+        if key not in self._envelopes:
+            index = self.config.scenarios.index(base["scenario"])
+            env = self._env(base["scenario"], "prior")
+            try:
+                runs = [
+                    run_attempt(
+                        policy,
+                        env,
+                        pre,
+                        post,
+                        seed=episode_seed(self.config.seed, base["run"], 0, index, k),
+                        skill_weights=prior,
+                    )["contexts"]
+                    for k in range(ENVELOPE_RUNS)
+                ]
+            finally:
+                env.close()
+            self._envelopes[key] = Envelope.fit(runs)
+        return self._envelopes[key]
 
     def _feedback(
         self, method: str, policy: Any, attempt: dict[str, Any], demo: dict[str, Any], base: dict[str, Any]
@@ -512,6 +610,8 @@ class Benchmark:
                 "confirmed": report.get("confirmed"),
                 "pruned": report.get("pruned"),
             }
+        if method in ORACLE_METHODS:  # a diagnostic: it learns nothing
+            return {"gradient_steps": 0}
         new_skill = None
         if method in KVM_METHODS:  # the KVM-off core learns the demonstration as CODA-Prompt learns anything new
             new_skill = begin_feedback_skill(policy, f"{base['scenario']}.feedback_p{base['pass']}")
@@ -555,7 +655,7 @@ class Benchmark:
                     done[method, run] = json.loads(path.read_text())
                     bar.update(per_unit)
                 else:
-                    pending.append((method, run, checkpoints["kvm" if method in KVM_METHODS else "act"]))
+                    pending.append((method, run, checkpoints["kvm" if on_kvm_pool(method) else "act"]))
         if self.workers == 1 or len(pending) < 2:
             for method, run, checkpoint in pending:
                 done[method, run] = self.finish_run(method, run, checkpoint, bar)

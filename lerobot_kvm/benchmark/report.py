@@ -7,6 +7,13 @@ from typing import Any
 
 from ..envs.catalogue import CATEGORIES
 
+# The benchmark's diagnostic rows: told the variant and where the shift shows, so never methods (`protocol.py`).
+PRIVILEGED = ("oracle_skill", "oracle_switch")
+
+
+def _label(name: str) -> str:
+    return f"{name} (privileged)" if name in PRIVILEGED else name
+
 
 def _pct(value: float | None, digits: int = 1) -> str:
     return "-" if value is None else f"{100 * value:.{digits}f}"
@@ -33,7 +40,7 @@ def category_table(results: dict[str, Any]) -> list[str]:
     rows = []
     for name, res in results["methods"].items():
         cells = [res["per_pass"][p]["per_category"].get(c, "-") for c in categories for p in passes]
-        rows.append([name, *cells, res["overall"]["success"]])
+        rows.append([_label(name), *cells, res["overall"]["success"]])
     legend = ", ".join(f"{c}: {CATEGORIES[c]}" for c in categories)
     return _table(header, rows) + [f"Categories: {legend}. R1-R3: passes (knowledge kept across passes).", ""]
 
@@ -53,7 +60,7 @@ def method_table(results: dict[str, Any]) -> list[str]:
     for name, res in results["methods"].items():
         rows.append(
             [
-                name,
+                _label(name),
                 *[
                     _with_interval(res, key)
                     for key in (
@@ -136,7 +143,7 @@ def difference_table(results: dict[str, Any]) -> list[str]:
             else:
                 verdict = "" if d["detectable"] else ", no detectable difference"
                 cells.append(f"{100 * d['value']:+.1f} [{100 * d['low']:+.1f}, {100 * d['high']:+.1f}]{verdict}")
-        rows.append([name, *cells])
+        rows.append([_label(name), *cells])
     return [
         f"### Differences from `{diffs['reference']}` (paired 95 % intervals)",
         "",
@@ -237,8 +244,12 @@ def markdown(results: dict[str, Any], plots: list[Path]) -> str:
         "## Methods and ablations (Table 4)",
         "",
         *method_table(results),
-        "CFR: share of challenge attempts ending in a catastrophe. Prior retention: prior-variant controls solved. "
-        "Brackets: 95 % interval, bootstrap over runs and scenarios (docs/benchmark.md).",
+        "CFR: share of challenge attempts ending in a catastrophe. Abstentions: attempts where the policy held "
+        "because every candidate skill was suppressed, neither success nor catastrophe. Prior retention: "
+        "prior-variant controls solved. Brackets: 95 % interval, bootstrap over runs and scenarios "
+        "(docs/benchmark.md). Privileged rows are diagnostics, not methods: `oracle_skill` forces the safe skill "
+        "on shifted episodes, `oracle_switch` switches to it where the sensed context leaves the prior variant's "
+        "envelope.",
         "",
         *feedback_lines(results),
         *difference_table(results),

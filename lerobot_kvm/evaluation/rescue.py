@@ -50,6 +50,11 @@ class Envelope:
         pad = stretch * (high - low) + margin * (frames.max(axis=0) - frames.min(axis=0)) + floor
         return cls(low - pad, high + pad)
 
+    def outside(self, step: int, context: np.ndarray) -> bool:
+        """Whether one step's context [channels] lies outside the envelope (past its last step: the last bounds)."""
+        row = min(step, len(self.low) - 1)
+        return bool(((context < self.low[row]) | (context > self.high[row])).any())
+
     def exit_step(self, contexts: np.ndarray) -> int | None:
         """First step at which `contexts` ([steps, channels]) leave the envelope; None if they never do."""
         rows = np.minimum(np.arange(len(contexts)), len(self.low) - 1)

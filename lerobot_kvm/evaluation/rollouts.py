@@ -16,6 +16,8 @@ from ..kvm.telemetry import KvmTrace
 from ..policy.feedback import make_demonstration
 
 Processor = Callable[[dict[str, Any]], Any]
+# Per-step skill weights: (control step, the step's raw sensed context) -> [1, S] weights of the fused prompt.
+WeightSchedule = Callable[[int, np.ndarray], Tensor]
 
 
 def auroc(hazardous: Sequence[float] | Tensor, safe: Sequence[float] | Tensor) -> float:
@@ -73,20 +75,28 @@ def run_attempt(
     postprocessor: Processor,
     seed: int | None = None,
     max_steps: int | None = None,
-    skill_weights: Tensor | None = None,
+    skill_weights: Tensor | WeightSchedule | None = None,
 ) -> dict[str, Any]:
-    """One attempt of the policy: {"outcome", "steps", "catastrophe_kind", "trace"} (trace: the KVM's record of
-    the attempt, None for a policy without one). `skill_weights` [1, S] forces the fused prompt's skill weights
-    (a `coda_kvm` policy; the KVM is then not consulted)."""
-    extra = {} if skill_weights is None else {"skill_weights": skill_weights}
+    """One attempt of the policy: {"outcome", "steps", "catastrophe_kind", "trace", "contexts"} (trace: the KVM's
+    record of the attempt, None for a policy without one; contexts [steps, C]: the raw sensed context of every
+    observation the policy acted on). `skill_weights` forces the fused prompt's skill weights (a `coda_kvm` policy;
+    the KVM is then not consulted): [1, S] for the whole attempt, or a schedule giving them per step (a change of
+    weights drops the queued actions, so the new mix acts at once)."""
     obs, info = env.reset(seed=seed)
     policy.reset()
     steps = 0
     limit = max_steps or env._max_episode_steps
+    contexts = []
+    in_force = None
     for steps in range(1, limit + 1):  # noqa: B007
+        contexts.append(np.asarray(obs["context"], dtype=np.float64))
+        weights = skill_weights(steps - 1, contexts[-1]) if callable(skill_weights) else skill_weights
+        if in_force is not None and weights is not None and not torch.equal(weights, in_force):
+            policy.reset()
+        in_force = weights
         batch = preprocessor(observation_batch(obs, env.task_description))
         with torch.inference_mode():
-            action = policy.select_action(batch, **extra)
+            action = policy.select_action(batch, **({} if weights is None else {"skill_weights": weights}))
         action = postprocessor(action)
         obs, _, terminated, truncated, info = env.step(action[0].cpu().numpy())
         if terminated or truncated:
@@ -97,6 +107,7 @@ def run_attempt(
         "steps": steps,
         "catastrophe_kind": info.get("catastrophe_kind", ""),
         "trace": trace,
+        "contexts": np.stack(contexts),
     }
 
 

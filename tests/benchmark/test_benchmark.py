@@ -4,22 +4,29 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
+import torch
 
-from lerobot_kvm.benchmark.continual import ContinualRun, SequenceConfig
+from lerobot_kvm.benchmark import protocol
+from lerobot_kvm.benchmark.continual import ContinualRun, SequenceConfig, TaskSpec
 from lerobot_kvm.benchmark.protocol import (
     KVM_METHODS,
+    ORACLE_METHODS,
     PEER_METHODS,
     SEED_OFFSETS,
     Benchmark,
     BenchmarkConfig,
+    SwitchOnExit,
     episode_fields,
     episode_seed,
+    learned_skill,
     load_policy,
     uncovered_scenarios,
 )
 from lerobot_kvm.benchmark.report import coverage_lines
 from lerobot_kvm.envs.scenario import SCENARIOS
+from lerobot_kvm.evaluation.rescue import Envelope
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
@@ -57,29 +64,28 @@ def test_episode_seeds_are_distinct_per_role_and_far_from_recording_and_cl_seeds
     assert min(seeds) > 100_000 + 10_000
 
 
-def test_scenarios_whose_prior_skill_the_pool_never_learned_are_flagged():
-    default = SequenceConfig.from_json(CONFIGS / "cl_default.json")
-    # chip_bag is learned from its safe skill under the skill's instruction; potato's prior skill is pretraining's
+def test_scenarios_without_their_prior_skill_or_a_safe_alternative_in_the_pool_are_flagged():
+    sequence = SequenceConfig.from_json(CONFIGS / "cl_tiny.json")
+    tasks = [
+        {"scenario": "egg_vs_stone"},  # prior skill only
+        {"scenario": "chip_bag", "skill": "safe", "instruction": "skill"},  # alternative only
+        {"scenario": "potato"},
+        {"scenario": "potato", "skill": "safe", "instruction": "skill"},
+    ]
+    sequence = replace(sequence, tasks=[TaskSpec(**t) for t in tasks], pretrain_tasks=[])
     scenarios = ["egg_vs_stone", "chip_bag", "potato", "ice_cream"]
-    assert uncovered_scenarios(default, scenarios) == ["chip_bag", "ice_cream"]
-    quick = BenchmarkConfig.from_json(CONFIGS / "benchmark_quick.json")
-    assert uncovered_scenarios(SequenceConfig.from_json(CONFIGS / "cl_quick.json"), quick.scenarios) == []
+    assert uncovered_scenarios(sequence, scenarios) == ["egg_vs_stone", "chip_bag", "ice_cream"]
     assert coverage_lines([]) == [] and "chip_bag" in coverage_lines(["chip_bag"])[0]
 
 
-def test_full_benchmark_covers_the_whole_suite_with_every_method():
-    full = BenchmarkConfig.from_json(CONFIGS / "benchmark_full.json")
-    assert sorted(full.scenarios) == sorted(SCENARIOS) and full.runs >= 5 and full.passes == 3
-    assert set(full.methods) == {*KVM_METHODS, *PEER_METHODS}
-    sequence = SequenceConfig.from_json(CONFIGS / "cl_full.json")
-    assert uncovered_scenarios(sequence, full.scenarios) == []
-    # leakage rule: no shifted variant before the benchmark
+@pytest.mark.parametrize("name", ["quick", "default", "full"])
+def test_every_shipped_benchmark_scenario_has_its_prior_skill_and_a_separate_safe_alternative(name):
+    """Suppressing a scenario's prior skill must leave an alternative the pool learned for it, in another skill
+    (DESIGN §6), learned from the prior variant only (no shifted frame before the benchmark)."""
+    config = BenchmarkConfig.from_json(CONFIGS / f"benchmark_{name}.json")
+    sequence = SequenceConfig.from_json(CONFIGS.parent / config.sequence)
+    assert uncovered_scenarios(sequence, config.scenarios) == []
     assert {t.variant for t in [*sequence.tasks, *sequence.pretrain_tasks]} == {"prior"}
-
-
-def test_the_full_pool_never_learns_a_scenarios_alternative_inside_the_skill_it_replaces():
-    """Suppressing a scenario's prior skill must leave the alternative the pool learned for it (DESIGN §6)."""
-    sequence = SequenceConfig.from_json(CONFIGS / "cl_full.json")
     skills = [sequence.pretrain_tasks, *([t] for t in sequence.tasks)]  # what each CODA skill learns
 
     def learning(scenario: str, expert_skill: str) -> set[int]:
@@ -89,9 +95,42 @@ def test_the_full_pool_never_learns_a_scenarios_alternative_inside_the_skill_it_
             if any((t.scenario, t.expert_skill) == (scenario, expert_skill) for t in tasks)
         }
 
-    for scenario_id, scenario in SCENARIOS.items():
-        alternative = learning(scenario_id, scenario.info.safe_skill)
-        assert not alternative & learning(scenario_id, scenario.info.prior_skill), scenario_id
+    for scenario_id in config.scenarios:
+        info = SCENARIOS[scenario_id].info
+        assert not learning(scenario_id, info.safe_skill) & learning(scenario_id, info.prior_skill), scenario_id
+
+
+def test_quick_and_default_configurations_cover_every_category():
+    for name, per_category in (("quick", 1), ("default", 2)):
+        config = BenchmarkConfig.from_json(CONFIGS / f"benchmark_{name}.json")
+        categories = [SCENARIOS[s].info.category for s in config.scenarios]
+        assert {c: categories.count(c) for c in "ABC"} == dict.fromkeys("ABC", per_category), name
+
+
+def test_full_benchmark_covers_the_whole_suite_with_every_method():
+    full = BenchmarkConfig.from_json(CONFIGS / "benchmark_full.json")
+    assert sorted(full.scenarios) == sorted(SCENARIOS) and full.runs >= 5 and full.passes == 3
+    assert set(full.methods) == {*KVM_METHODS, *PEER_METHODS, *ORACLE_METHODS}
+
+
+def test_oracle_switch_forces_the_prior_skill_until_the_context_leaves_the_envelope_then_the_safe_one():
+    runs = [np.zeros((5, 2)), np.ones((5, 2)) * 0.1]
+    envelope = Envelope.fit(runs, window=0, stretch=0.0, margin=0.0, floor=0.01)
+    prior, safe = torch.tensor([[1.0, 0.0]]), torch.tensor([[0.0, 1.0]])
+    switch = SwitchOnExit(envelope, prior, safe)
+    contexts = [[0.05, 0.05], [0.1, 0.0], [0.5, 0.0], [0.05, 0.05], [0.05, 0.05]]
+    weights = [switch(step, np.array(c)) for step, c in enumerate(contexts)]
+    assert [w.argmax().item() for w in weights] == [0, 0, 1, 1, 1] and switch.switch_step == 2  # and stays
+
+
+def test_learned_skill_finds_a_stage_skill_by_name_and_pretraining_as_skill_0(monkeypatch):
+    sequence = SequenceConfig.from_json(CONFIGS / "cl_tiny.json")  # pretraining: potato's prior skill
+    names = {"egg_vs_stone.firm_grasp": 1, "egg_vs_stone.gentle_grasp": 2}
+    monkeypatch.setattr(protocol, "skill_index", lambda policy, scenario, expert: names.get(f"{scenario}.{expert}"))
+    assert learned_skill(None, sequence, "egg_vs_stone", "prior") == 1
+    assert learned_skill(None, sequence, "egg_vs_stone", "safe") == 2
+    assert learned_skill(None, sequence, "potato", "prior") == 0
+    assert learned_skill(None, sequence, "potato", "safe") is None
 
 
 def test_episode_fields_without_a_validity_trace():
@@ -106,7 +145,7 @@ def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
         "name": "tiny",
         "sequence": str(CONFIGS / "cl_tiny.json"),
         "scenarios": ["egg_vs_stone", "chip_bag"],
-        "methods": ["coda_kvm", "coda_prompt", "no_smart_gate", "no_energy_model", "act"],
+        "methods": ["coda_kvm", "coda_prompt", "no_smart_gate", "no_energy_model", "act", *ORACLE_METHODS],
         "passes": 2,
         "feedback_steps": 2,
         "finetune_batch": 4,
@@ -161,13 +200,18 @@ def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
     assert all(f["new_skill"]["created"] for f in core)  # the KVM-off core learns each demonstration as a new skill
     for method in config["methods"]:  # every method's counted steps are the budget, whatever it trains
         feedback = json.loads((out / "episodes" / method / "run_0.json").read_text())["feedback"]
-        assert all(f["gradient_steps"] == config["feedback_steps"] for f in feedback), method
-        assert results["methods"][method]["feedback"]["steps_each"] in ([], [config["feedback_steps"]]), method
+        budget = 0 if method in ORACLE_METHODS else config["feedback_steps"]  # a diagnostic learns nothing
+        assert all(f["gradient_steps"] == budget for f in feedback), method
+        if method not in ORACLE_METHODS:
+            assert results["methods"][method]["feedback"]["steps_each"] in ([], [budget]), method
+    switch = json.loads((out / "episodes" / "oracle_switch" / "run_0.json").read_text())["records"]
+    eggs = [r for r in switch if (r["scenario"], r["kind"]) == ("egg_vs_stone", "challenge")]
+    assert eggs and all("switch_step" in r for r in eggs)  # egg_vs_stone has both skills in the tiny pool
 
     report = (out / "report.md").read_text()
     for heading in ("Table 1/9", "Table 4", "Table 10", "Table 11"):
         assert heading in report
-    assert "| coda_kvm |" in report and "| act |" in report
+    assert "| coda_kvm |" in report and "| act |" in report and "| oracle_switch (privileged) |" in report
     assert (out / "plots" / "success_by_pass.png").stat().st_size > 0
     assert (out / "plots" / "energy_histograms.png").stat().st_size > 0
 
