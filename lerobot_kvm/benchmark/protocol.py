@@ -260,8 +260,10 @@ def begin_feedback_skill(policy: Any, name: str) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- episodes
-def episode_fields(result: dict[str, Any]) -> dict[str, Any]:
-    """Outcome, length and the KVM's per-step series (None without a validity module) of one attempt."""
+def episode_fields(result: dict[str, Any], skills: Sequence[str] = ()) -> dict[str, Any]:
+    """Outcome, length and the KVM's per-step series (None without a validity module) of one attempt; with the
+    pool's skill names, also which skill carried the first step (`proposed`), which one carried the first step of
+    the first intervention (`took_over`, None if the policy abstained there) and the first abstention step."""
     trace = result.get("trace")
     telemetry = [] if trace is None else [t for t in trace.telemetry if t is not None]
     fields: dict[str, Any] = {
@@ -288,6 +290,18 @@ def episode_fields(result: dict[str, Any]) -> dict[str, Any]:
         intervention_steps=len(hits),
         first_intervention=hits[0] if hits else None,
     )
+    if skills:
+        abstained = [i for i, t in enumerate(telemetry) if bool(t.abstained[0])]
+
+        def carrier(step: int) -> str | None:
+            weights = telemetry[step].skill_weight[0]
+            return None if not bool(weights.any()) else skills[int(weights.argmax())]
+
+        fields.update(
+            proposed=carrier(0),
+            took_over=carrier(hits[0]) if hits else None,
+            first_abstention=abstained[0] if abstained else None,
+        )
     return fields
 
 
@@ -333,6 +347,11 @@ def uncovered_scenarios(sequence: SequenceConfig, scenarios: Sequence[str]) -> l
     prior = {t.scenario for t in tasks if (t.variant, t.skill, t.instruction) == ("prior", "prior", "variant")}
     safe = {t.scenario for t in tasks if (t.variant, t.skill) == ("prior", "safe")}
     return [s for s in scenarios if s not in prior or s not in safe]
+
+
+def _skill_names(policy: Any) -> list[str]:
+    """The pool's skill names now (a `coda_kvm` policy; none for a peer)."""
+    return [s.name for s in getattr(policy, "skills", [])]
 
 
 def _switch_field(oracle: Any) -> dict[str, Any]:
@@ -480,7 +499,7 @@ class Benchmark:
             ref_step = len(reference["task"]) if ref_outcome == "catastrophe" else None
             out["records"].append(
                 {**challenge, "attempt": 1, "reference_catastrophe_step": ref_step}
-                | episode_fields(first)
+                | episode_fields(first, _skill_names(policy))
                 | _switch_field(oracle)
             )
             if first["outcome"] == "success":
@@ -496,7 +515,7 @@ class Benchmark:
             second = run_attempt(policy, env, pre, post, seed=second_seed, skill_weights=oracle)
             out["records"].append(
                 {**challenge, "attempt": 2, "seed": second_seed, "reference_catastrophe_step": None}
-                | episode_fields(second)
+                | episode_fields(second, _skill_names(policy))
                 | _switch_field(oracle)
             )
             out["records"][-1]["pruned"] = self._report(method, policy, second)

@@ -2,6 +2,7 @@
 ablations and peers, Table 10 gate statistics, Table 11 overhead), the pool's continual-learning metrics, and
 the plots in `plots/`."""
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -227,7 +228,8 @@ def coverage_lines(uncovered: list[str]) -> list[str]:
     ]
 
 
-def markdown(results: dict[str, Any], plots: list[Path]) -> str:
+def markdown(results: dict[str, Any], plots: list[Path], account: Sequence[str] = ()) -> str:
+    """The report: `account` (what the reference method did in each challenge) comes before the tables."""
     cfg = results["config"]
     lines = [
         f"# Knowledge-obsolescence benchmark `{results['benchmark']}`",
@@ -238,6 +240,7 @@ def markdown(results: dict[str, Any], plots: list[Path]) -> str:
         "",
         *time_lines(results.get("time_breakdown")),
         *coverage_lines(results["pool"].get("uncovered_scenarios", [])),
+        *account,
         "## Success per category and pass (Table 1/9)",
         "",
         *category_table(results),
@@ -273,14 +276,50 @@ def markdown(results: dict[str, Any], plots: list[Path]) -> str:
     return "\n".join(lines)
 
 
+def _attempt_account(record: dict[str, Any]) -> str:
+    """One attempt in words: the skill proposed, when validity fell and what took over, the outcome."""
+    parts = [f"`{record.get('proposed') or '-'}` proposed"]
+    if record.get("first_intervention") is not None:
+        took = record.get("took_over")
+        after = f"`{took}` took over" if took else "the policy abstained"
+        parts.append(f"validity fell at step {record['first_intervention']}, {after}")
+    elif record.get("first_abstention") is not None:
+        parts.append(f"abstained at step {record['first_abstention']}")
+    else:
+        parts.append("nothing suppressed")
+    return ", ".join(parts) + f" -> {record['outcome']} at step {record['steps']}"
+
+
+def challenge_account(records: list[dict[str, Any]], plots_dir: Path) -> list[str]:
+    """Each first-pass challenge of the reference method's first run, attempt by attempt, with its trace plot
+    (drawn here when the report's own selection left it out)."""
+    from .plots import REFERENCE_METHOD, plot_uncertainty_trace, trace_filename
+
+    chosen = [
+        r
+        for r in records
+        if (r["method"], r["run"], r["pass"], r["kind"]) == (REFERENCE_METHOD, 0, 1, "challenge")
+        and r.get("series") is not None
+    ]
+    if not chosen:
+        return []
+    lines = [f"## What `{REFERENCE_METHOD}` did in each challenge (run 1, pass 1)", ""]
+    for r in sorted(chosen, key=lambda r: (r["scenario"], r["attempt"])):
+        path = plots_dir / trace_filename(r)
+        if not path.exists():
+            plot_uncertainty_trace(r, path)
+        lines.append(f"* {r['scenario']}, attempt {r['attempt']}: {_attempt_account(r)} ([trace](plots/{path.name}))")
+    return [*lines, ""]
+
+
 def write_report(
     results: dict[str, Any], records: list[dict[str, Any]], probes: list[dict[str, Any]], out: Path
 ) -> Path:
-    """Plots into `out/plots/` and the tables into `out/report.md`."""
+    """Plots into `out/plots/` and the tables into `out/report.md` (the per-challenge account first)."""
     from .plots import write_plots
 
     success = {name: res["success_by_pass"] for name, res in results["methods"].items()}
     plots = write_plots(records, probes, success, out / "plots", max_traces=results["config"]["trace_plots"])
     path = out / "report.md"
-    path.write_text(markdown(results, plots))
+    path.write_text(markdown(results, plots, challenge_account(records, out / "plots")))
     return path

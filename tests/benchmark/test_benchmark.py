@@ -209,7 +209,7 @@ def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
     assert eggs and all("switch_step" in r for r in eggs)  # egg_vs_stone has both skills in the tiny pool
 
     report = (out / "report.md").read_text()
-    for heading in ("Table 1/9", "Table 4", "Table 10", "Table 11"):
+    for heading in ("What `coda_kvm` did in each challenge", "Table 1/9", "Table 4", "Table 10", "Table 11"):
         assert heading in report
     assert "| coda_kvm |" in report and "| act |" in report and "| oracle_switch (privileged) |" in report
     assert (out / "plots" / "success_by_pass.png").stat().st_size > 0

@@ -183,3 +183,29 @@ def test_validity_check_plot_draws_every_scenario_with_missing_references(tmp_pa
     assert path.read_bytes().startswith(PNG_MAGIC)
     with pytest.raises(ValueError, match="no kvm-check rows"):
         plot_validity_check([], tmp_path / "none.png")
+
+
+def test_the_challenge_account_says_what_the_reference_method_did_and_links_every_trace(tmp_path):
+    from lerobot_kvm.benchmark.report import challenge_account
+
+    first = _record("coda_kvm", "potato", outcome="failure", gate_from=4)
+    first |= {"proposed": "potato.firm_grasp", "first_intervention": 5, "took_over": "potato.gentle_grasp"}
+    second = _record("coda_kvm", "potato", attempt=2, outcome="abstention") | {
+        "proposed": "potato.firm_grasp",
+        "first_intervention": 3,
+        "took_over": None,
+    }
+    calm = _record("coda_kvm", "drawer") | {"proposed": "drawer.tracking_pull", "first_intervention": None}
+    other = [_record("act", "potato"), _record("coda_kvm", "potato", pass_=2), _record("coda_kvm", "potato", run=1)]
+    lines = challenge_account([second, first, calm, *other], tmp_path)
+    assert lines[2:5] == [
+        "* drawer, attempt 1: `drawer.tracking_pull` proposed, nothing suppressed -> success at step 12 "
+        "([trace](plots/trace_coda_kvm_drawer_p1_a1.png))",
+        "* potato, attempt 1: `potato.firm_grasp` proposed, validity fell at step 5, `potato.gentle_grasp` took over "
+        "-> failure at step 12 ([trace](plots/trace_coda_kvm_potato_p1_a1.png))",
+        "* potato, attempt 2: `potato.firm_grasp` proposed, validity fell at step 3, the policy abstained "
+        "-> abstention at step 12 ([trace](plots/trace_coda_kvm_potato_p1_a2.png))",
+    ]
+    assert len(lines) == 6 and sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        trace_filename(r) for r in (first, second, calm)
+    )
