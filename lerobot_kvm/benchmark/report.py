@@ -131,7 +131,7 @@ def difference_table(results: dict[str, Any]) -> list[str]:
     diffs = results.get("differences") or {}
     if not diffs.get("methods"):
         return []
-    header = ["method", *(f"{label} (pp)" for label in DIFFERENCE_LABELS)]
+    header = ["method", *(f"{label} (pp)" for label in DIFFERENCE_LABELS.values())]
     rows = []
     for name, by_rate in diffs["methods"].items():
         cells = []
