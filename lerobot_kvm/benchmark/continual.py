@@ -25,6 +25,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import torch
 from tqdm import tqdm
 
 from ..datasets.check import check_dataset
@@ -215,6 +216,10 @@ class ContinualRun:
             unknown = sorted(set(only) - {m.name for m in config.methods})
             if unknown:
                 raise ValueError(f"unknown methods {unknown}; the config has {[m.name for m in config.methods]}")
+        try:  # a misspelt device would be kept in settings.json, and the rerun with the right one refused
+            torch.device(device)
+        except RuntimeError as err:
+            raise ValueError(f"device {device!r} is not a torch device ({err})") from None
         self.config = config
         self.methods = [m for m in config.methods if only is None or m.name in only]
         self.out = Path(output_dir)

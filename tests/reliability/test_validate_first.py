@@ -89,6 +89,19 @@ def test_a_sequence_fault_names_file_and_key_and_leaves_nothing(work, capsys, re
         main(argv)
 
 
+@pytest.mark.parametrize("command", ["train-continual", "benchmark"])
+def test_a_misspelt_device_is_refused_before_writing(work, capsys, recorded, command):
+    """The device is one of the settings a rerun must repeat: kept after a typo, it refused the corrected rerun."""
+    sequence = _write(work / "cl.json", SEQUENCE)
+    common = ["--device=cdua", f"--dataset-root={recorded}"]
+    if command == "benchmark":
+        argv = [*_benchmark(work, str(CONFIGS / "cl_quick.json")), *common]
+    else:
+        argv = ["train-continual", f"--config={sequence}", "--output-dir=out", *common]
+    assert "device 'cdua' is not a torch device (Expected one of cpu, cuda" in _refused(argv, capsys)
+    assert not (work / "out").exists() and not (work / "bench").exists()
+
+
 def _damage(root: Path, fault: str) -> None:
     if fault == "truncated info":
         info = root / "meta" / "info.json"
