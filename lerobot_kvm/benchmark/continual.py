@@ -25,10 +25,11 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
+import torch
 from tqdm import tqdm
 
 from ..datasets.check import check_dataset
-from ..datasets.json_config import build, build_list, read_json
+from ..datasets.json_config import build, build_list, check_counts, read_json
 from ..datasets.labels import load_labels
 from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
 from ..envs.catalogue import scenario_info
@@ -103,8 +104,11 @@ class MethodSpec:
             raise ValueError(f"method {self.name}: mode must be one of {MODES}, got {self.mode!r}")
         if self.checkpoints_from is not None and self.mode != "sequential":
             raise ValueError(f"method {self.name}: checkpoints_from needs mode 'sequential'")
-        if self.steps_per_stage < 1 or self.batch_size < 1 or self.pretrain_steps < 0:
-            raise ValueError(f"method {self.name}: steps_per_stage and batch_size must be >= 1, pretrain_steps >= 0")
+        check_counts(self, {"steps_per_stage": 1, "batch_size": 1, "pretrain_steps": 0})
+        for key in ("args", "later_stage_args", "eval_args"):  # a string would be passed on character by character
+            value = getattr(self, key)
+            if not isinstance(value, list) or not all(isinstance(a, str) for a in value):
+                raise ValueError(f"{key} must be a list of command-line arguments (strings), got {value!r}")
 
 
 @dataclass
@@ -121,6 +125,8 @@ class SequenceConfig:
     dataset_root: str | None = None
 
     def __post_init__(self) -> None:
+        # the recording's and evaluation's counts: refused here, not by the recorder after settings are written
+        check_counts(self, {"episodes_per_task": 1, "pretrain_episodes_per_task": 1, "eval_episodes": 1})
         if not self.tasks:
             raise ValueError("a sequence needs at least one task")
         names = [t.name for t in self.tasks]
@@ -210,6 +216,10 @@ class ContinualRun:
             unknown = sorted(set(only) - {m.name for m in config.methods})
             if unknown:
                 raise ValueError(f"unknown methods {unknown}; the config has {[m.name for m in config.methods]}")
+        try:  # a misspelt device would be kept in settings.json, and the rerun with the right one refused
+            torch.device(device)
+        except RuntimeError as err:
+            raise ValueError(f"device {device!r} is not a torch device ({err})") from None
         self.config = config
         self.methods = [m for m in config.methods if only is None or m.name in only]
         self.out = Path(output_dir)
@@ -376,8 +386,23 @@ class ContinualRun:
         train_s = [self._train_time(stage_dir)]
         return {"mode": "joint", "final": final, "metrics": joint_metrics(final), "train_wall_s": train_s}
 
+    def _episodes(self) -> tuple[list[list[int]], list[list[int]]]:
+        """The dataset's episodes of each task and of each pretraining task, once the dataset is checked: a damaged
+        one is named here, not deep inside lerobot-train."""
+        check_dataset(self.dataset_root)
+        episodes = task_episodes(self.dataset_root, self.config.tasks)
+        return episodes, task_episodes(self.dataset_root, self.config.pretrain_tasks)
+
+    def check_dataset(self) -> None:
+        """Refuse an existing dataset that is damaged or lacks a task of the sequence before anything is written:
+        refused after the settings are recorded, the corrected rerun (another `--dataset-root`) would be refused
+        as made with other settings. A dataset still to be recorded is checked once recorded."""
+        if self.dataset_root.exists():
+            self._episodes()
+
     def run(self) -> dict[str, Any]:
         """The whole run, holding the output directory (`lock.hold`) so that no second run works in it."""
+        self.check_dataset()  # before the lock: a refused run leaves no output directory
         with hold(self.out):
             return self._run()
 
@@ -387,9 +412,7 @@ class ContinualRun:
         if not self.dataset_root.exists():
             print(f"recording {self.dataset_root}")
             record_dataset(self.config.recording_spec(), self.dataset_root, repo_id=self.config.repo_id)
-        check_dataset(self.dataset_root)  # a damaged dataset is named here, not deep inside lerobot-train
-        episodes = task_episodes(self.dataset_root, self.config.tasks)
-        pretrain_episodes = task_episodes(self.dataset_root, self.config.pretrain_tasks)
+        episodes, pretrain_episodes = self._episodes()
         n_jobs = sum(
             2 * (len(self.config.tasks) if m.mode == "sequential" else 1)
             + bool(pretrain_episodes and m.checkpoints_from is None)

@@ -40,7 +40,7 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from ..datasets.json_config import build, read_json
+from ..datasets.json_config import build, check_counts, read_json
 from ..envs.catalogue import SCENARIO_INFOS, scenario_info
 from ..envs.env import KvmObsolescenceEnv
 from ..evaluation.rescue import Envelope
@@ -109,8 +109,10 @@ class BenchmarkConfig:
         bad = [c for c in self.controls if c not in CONTROL_KINDS]
         if bad:
             raise ValueError(f"controls must be among {CONTROL_KINDS}, got {bad}")
-        if self.runs < 1 or self.passes < 1 or self.feedback_steps < 0:
-            raise ValueError("runs and passes must be >= 1 and feedback_steps >= 0")
+        check_counts(
+            self,
+            {"runs": 1, "passes": 1, "feedback_steps": 0, "finetune_batch": 1, "overhead_steps": 1, "trace_plots": 0},
+        )
         unknown_kvm = sorted(set(self.kvm) - {f.name for f in fields(KvmConfig)})
         if unknown_kvm:
             raise ValueError(f"`kvm` has unknown settings {unknown_kvm}")
@@ -399,19 +401,19 @@ class Benchmark:
             raise ValueError(f"{config.sequence} has no methods {missing} (it has {sorted(known)})")
         self.pool_methods = needed
         self._envelopes: dict[tuple[int, str], Envelope] = {}
+        self.pool = ContinualRun(
+            self.sequence, self.out / "pool", self.launcher, str(self.sequence_path), needed, device
+        )
 
     # ------------------------------------------------------------------ pool
     def grow_pool(self) -> tuple[dict[str, Any], dict[str, Path]]:
         """The continual-learning sequence (resumable), and the pool checkpoint of each method family."""
-        pool = ContinualRun(
-            self.sequence, self.out / "pool", self.launcher, str(self.sequence_path), self.pool_methods, self.device
-        )
-        results = pool.run()
+        results = self.pool.run()
         checkpoints = {}
         if self.config.kvm_method in self.pool_methods:
-            checkpoints["kvm"] = pool.final_checkpoint(self.config.kvm_method)
+            checkpoints["kvm"] = self.pool.final_checkpoint(self.config.kvm_method)
         if "act" in self.config.methods:
-            checkpoints["act"] = pool.final_checkpoint(self.config.act_method)
+            checkpoints["act"] = self.pool.final_checkpoint(self.config.act_method)
         return results, checkpoints
 
     # ------------------------------------------------------------------ one (method, run)
@@ -695,6 +697,7 @@ class Benchmark:
     # ------------------------------------------------------------------ everything
     def run(self) -> dict[str, Any]:
         """The whole run, holding the output directory (`lock.hold`) so that no second run works in it."""
+        self.pool.check_dataset()  # before the lock and the settings: a refused run leaves nothing behind
         with hold(self.out):
             return self._run()
 

@@ -43,18 +43,20 @@ def run(args: argparse.Namespace) -> int:
             item.episodes = args.episodes
     dataset_root = Path(args.dataset_root or f"datasets/{spec.name}")
     repo_id = f"local/{spec.name}"
+    reuse = dataset_root.exists()
+    if reuse:  # checked before the settings are recorded, which would refuse the rerun with another --dataset-root
+        check_dataset(dataset_root)
+        check_recording(dataset_root, spec)
     if args.fresh:
         shutil.rmtree(out, ignore_errors=True)
     trained_with = {"dataset_root": str(dataset_root), "recording": asdict(spec), "steps": args.steps}
     trained_with |= {"batch_size": args.batch_size, "seed": args.seed}
     check_settings(out, trained_with, "a walkthrough's policy", "pass --fresh")
-    if not dataset_root.exists():
+    if reuse:
+        print(f"[1/3] reusing recorded dataset {dataset_root}")
+    else:
         print(f"[1/3] recording {dataset_root}")
         record_dataset(spec, dataset_root, repo_id=repo_id)
-    else:
-        check_recording(dataset_root, spec)
-        check_dataset(dataset_root)
-        print(f"[1/3] reusing recorded dataset {dataset_root}")
 
     train_dir = out / "train"
     policy_path = train_dir / "checkpoints" / "last" / "pretrained_model"

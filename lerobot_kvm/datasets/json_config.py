@@ -1,7 +1,7 @@
 """JSON settings files (recording specs, sequence and benchmark configs) read into dataclasses.
 
 Every fault names the file and the key: malformed JSON, a key the dataclass does not have at any depth, a
-missing required key, a value the dataclass's own checks refuse.
+missing required key, a count below its minimum, a value the dataclass's own checks refuse.
 """
 
 import dataclasses
@@ -47,3 +47,12 @@ def build_list[T](cls: Callable[..., T], raw: dict[str, Any], key: str, where: s
     if not isinstance(items, list):
         raise ValueError(f"{where}: '{key}' must be a list, got {items!r}")
     return [build(cls, item, f"{where}: {key}[{i}]") for i, item in enumerate(items)]
+
+
+def check_counts(obj: object, minimums: Mapping[str, int]) -> None:
+    """Refuse a count field of `obj` that is not an integer of at least its minimum, naming the field: a zero or
+    negative count would otherwise fail late (after settings are written) or be read as a default."""
+    for key, least in minimums.items():
+        value = getattr(obj, key)
+        if isinstance(value, bool) or not isinstance(value, int) or value < least:
+            raise ValueError(f"{key} must be >= {least}, got {value!r}")

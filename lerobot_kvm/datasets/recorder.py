@@ -21,7 +21,7 @@ from ..envs.catalogue import scenario_info
 from ..envs.configuration_kvm_obsolescence import OBS_CONTEXT
 from ..envs.env import KvmObsolescenceEnv
 from ..envs.sensing import ACTION_NAMES, STATE_NAMES, context_names
-from .json_config import build, build_list, read_json
+from .json_config import build, build_list, check_counts, read_json
 from .labels import LABELS_FILE
 from .ownership import process_alive
 
@@ -54,8 +54,7 @@ class RecordItem:
             )
         if self.instruction not in ("variant", "skill"):
             raise ValueError(f"instruction must be 'variant' or 'skill', got {self.instruction!r}")
-        if self.episodes < 1:
-            raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        check_counts(self, {"episodes": 1})
 
     def task_string(self) -> str:
         info = scenario_info(self.scenario)
@@ -75,6 +74,7 @@ class RecordingSpec:
     def __post_init__(self) -> None:
         if not self.items:
             raise ValueError("a recording spec needs at least one item")
+        check_counts(self, {"fps": 1, "image_size": 1})  # before the temporary dataset is created
 
     @classmethod
     def from_json(cls, path: str | Path) -> "RecordingSpec":

@@ -103,6 +103,7 @@ def test_rate_counts_split_each_rate_by_run_and_scenario() -> None:
     assert counts["success_rate"] == {(0, "egg"): (1, 2), (0, "drawer"): (1, 1)}
     assert counts["first_attempt_success_rate"] == {(0, "egg"): (0, 2), (0, "drawer"): (1, 1)}
     assert counts["catastrophic_failure_rate"] == {(0, "egg"): (1, 4), (0, "drawer"): (0, 1)}
+    assert counts["abstention_rate"] == {(0, "egg"): (0, 4), (0, "drawer"): (0, 1)}
     assert counts["prior_retention"] == {(0, "egg"): (1, 1), (0, "drawer"): (0, 1)}
     assert counts["false_intervention_rate"] == {(0, "egg"): (1, 2), (0, "drawer"): (0, 1)}
     assert counts["gate_activation_rate_solved"] == {(0, "egg"): (1, 10)}
@@ -110,6 +111,7 @@ def test_rate_counts_split_each_rate_by_run_and_scenario() -> None:
         "success_rate",
         "first_attempt_success_rate",
         "catastrophic_failure_rate",
+        "abstention_rate",
         "prior_retention",
     }
 
@@ -125,8 +127,19 @@ def test_rate_intervals_hold_the_pooled_rate() -> None:
 def test_paired_differences_against_a_reference_method() -> None:
     better = [dict(r, outcome="success") if r["kind"] == "challenge" else r for r in RECORDS]
     diffs = paired_differences(better, RECORDS, validity=False)
-    assert set(diffs) == {"success_rate", "first_attempt_success_rate", "catastrophic_failure_rate", "prior_retention"}
+    rates = {"success_rate", "first_attempt_success_rate", "catastrophic_failure_rate", "abstention_rate"}
+    assert set(diffs) == rates | {"prior_retention"}
     assert diffs["success_rate"]["value"] == pytest.approx(1 - 2 / 3)
     # resampled: egg twice gives 1 - 1/2, drawer twice 0, one of each 1 - 2/3: 0 is inside
     assert diffs["success_rate"]["low"] == pytest.approx(0.0) and not diffs["success_rate"]["detectable"]
     assert diffs["prior_retention"]["value"] == 0.0 and not diffs["prior_retention"]["detectable"]
+
+
+def test_an_abstention_is_its_own_outcome_neither_success_nor_catastrophe() -> None:
+    held = [
+        dict(r, outcome="abstention") if r["outcome"] == "failure" and r["kind"] == "challenge" else r for r in RECORDS
+    ]
+    summary = summarize(held, validity=False)
+    assert summary["abstention_rate"] == pytest.approx(2 / 5)  # egg pass 2: both attempts held
+    assert summary["catastrophic_failure_rate"] == pytest.approx(1 / 5)
+    assert summary["success_rate"] == pytest.approx(2 / 3)

@@ -15,8 +15,8 @@ QUICK = Path(__file__).resolve().parents[2] / "configs" / "benchmark_quick.json"
     [
         ("--methods=coda_kvm,bogus", "unknown methods ['bogus']"),
         ("--methods=", "a benchmark needs methods and scenarios"),
-        ("--runs=0", "runs and passes must be >= 1"),
-        ("--runs=-2", "runs and passes must be >= 1"),
+        ("--runs=0", "runs must be >= 1, got 0"),
+        ("--runs=-2", "runs must be >= 1, got -2"),
         ("--workers=0", "workers must be >= 1"),
     ],
 )

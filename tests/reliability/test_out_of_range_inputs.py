@@ -31,6 +31,6 @@ def test_an_out_of_range_input_is_named(policy, key, value, message):
 
 
 def test_an_unknown_feedback_outcome_is_named(policy):
-    outcomes = r"\('success', 'failure', 'catastrophe'\)"
+    outcomes = r"\('success', 'failure', 'abstention', 'catastrophe'\)"
     with pytest.raises(ValueError, match=rf"outcome must be one of {outcomes}, got 'bogus'"):
         policy.kvm_feedback("bogus")
