@@ -2,8 +2,8 @@
 
 A supervisor can only hand control to knowledge that works on its own. Forcing the fused prompt to one skill
 (weight 1 on it, 0 on every other) and running episodes of every (scenario, variant) tells which skill solves
-what, and how often it causes the catastrophe; the core's own selection (every skill at weight 1, the KVM off) is
-the reference row. This bounds what any supervisor can reach with the pool: a safe alternative that fails alone
+what, and how often it causes the catastrophe; the core's own selection (eq. 3 with every v = 1: the relevances
+over the candidates, the KVM off) is the reference row. This bounds what any supervisor can reach with the pool: a safe alternative that fails alone
 cannot rescue a suppression.
 """
 
@@ -29,11 +29,11 @@ def skill_matrix(
     columns = [(s, v) for s in scenarios for v in scenario_info(s).variants]
     n = policy.n_skills
     device = policy.config.device
-    forced: list[tuple[str, torch.Tensor | None]] = [
+    forced: list[tuple[str, torch.Tensor | None]] = [  # one-hot: the skill's own prompt
         (skill.name, torch.nn.functional.one_hot(torch.tensor([skill.index]), n).float().to(device))
         for skill in policy.skills
     ]
-    forced.append((CORE, torch.ones(1, n, device=device)))
+    forced.append((CORE, None))  # the policy is loaded with the KVM off: its own routing
     rows = [{"skill": name, "cells": {}} for name, _ in forced]
     for scenario, variant in columns:
         env = KvmObsolescenceEnv(scenario, variant=variant)
