@@ -3,8 +3,8 @@
 A supervisor can only hand control to knowledge that works on its own. Forcing the fused prompt to one skill
 (weight 1 on it, 0 on every other) and running episodes of every (scenario, variant) tells which skill solves
 what, and how often it causes the catastrophe; the core's own selection (eq. 3 with every v = 1: the relevances
-over the candidates, the KVM off) is the reference row. This bounds what any supervisor can reach with the pool: a safe alternative that fails alone
-cannot rescue a suppression.
+over the candidates, the KVM off) is the reference row. This bounds what any supervisor can reach with the pool:
+a safe alternative that fails alone cannot rescue a suppression.
 """
 
 from collections.abc import Sequence
