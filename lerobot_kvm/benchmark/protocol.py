@@ -296,8 +296,10 @@ def episode_fields(result: dict[str, Any], skills: Sequence[str] = ()) -> dict[s
         abstained = [i for i, t in enumerate(telemetry) if bool(t.abstained[0])]
 
         def carrier(step: int) -> str | None:
+            """The skill with the largest decision weight at `step` (None where the policy abstained)."""
             weights = telemetry[step].skill_weight[0]
-            return None if not bool(weights.any()) else skills[int(weights.argmax())]
+            held = bool(telemetry[step].abstained[0]) or not bool(weights.any())
+            return None if held else skills[int(weights.argmax())]
 
         fields.update(
             proposed=carrier(0),
