@@ -3,8 +3,9 @@
 One dataset is recorded for the whole sequence, so every stage is normalised with the same statistics; each
 stage is a real `lerobot-train` run on that stage's episodes (`--dataset.episodes=[...]`), starting from the
 previous stage's checkpoint (`--policy.path=...`). `coda_kvm` begins a new skill per stage (new CODA
-components, earlier ones frozen); LeRobot's ACT is fine-tuned the plain way. After every stage each task
-learned so far is evaluated with the real `lerobot-eval`. A joint method trains once on every task.
+components, earlier ones frozen); LeRobot's ACT and Diffusion Policy are fine-tuned the plain way. After every
+stage each task learned so far is evaluated with the real `lerobot-eval`. A joint method trains once on every
+task.
 
 A sequence may begin with a pretraining stage on tasks outside the sequence (other scenarios), the counterpart
 of the ImageNet-pretrained ViT that CODA-Prompt prompts: every method starts from its own pretraining on the
@@ -40,7 +41,7 @@ from .resume import check_settings
 
 CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"
 TIMING = "timing.json"  # a finished stage's training wall time, kept for runs that resume
-POLICIES = ("coda_kvm", "act")
+POLICIES = ("coda_kvm", "act", "diffusion")  # LeRobot policy types a method may train
 MODES = ("sequential", "joint")
 
 

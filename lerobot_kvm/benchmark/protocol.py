@@ -1,16 +1,17 @@
 """`lerobot-kvm benchmark`: the knowledge-obsolescence challenge protocol (docs/benchmark.md).
 
 1. **Pool.** A continual-learning sequence (`train-continual` config) grows the skill pool with the real
-   `lerobot-train`: `coda_kvm` stage by stage, ACT as its own method. Its metrics are part of the results.
+   `lerobot-train`: `coda_kvm` stage by stage, each LeRobot peer (ACT, Diffusion Policy) as its own method. Its
+   metrics are part of the results.
 2. **Challenge.** For each method, run r = 1..R (the pretrained checkpoint loaded afresh, its own seeds) and pass
    p = 1..P (what a method learns is kept across passes), each scenario in turn: attempt 1 on the shifted variant;
    after a failure the feedback, then attempt 2 on a new episode of the same variant (its own seed, so that
    remembering attempt 1's initial state does not help). The feedback is the same information for every method:
    the failed attempt's trace, one corrective demonstration (the safe skill's scripted expert on the shifted
    variant, another seed) and `feedback_steps` gradient steps. `coda_kvm` and its ablations spend it in the KVM's
-   feedback API; the baselines (the CODA core with the KVM off, ACT) fine-tune their trainable parameters on the
-   demonstration. A validity method's successful attempts report their outcome to the feedback API without
-   gradient steps (the metabolism and the hypotheses count the challenge's interactions).
+   feedback API; the baselines (the CODA core with the KVM off, the LeRobot peers) fine-tune their trainable
+   parameters on the demonstration. A validity method's successful attempts report their outcome to the feedback
+   API without gradient steps (the metabolism and the hypotheses count the challenge's interactions).
 3. **Controls**, interleaved after every challenge: the scenario's prior variant (the old skill is still right)
    and, where the scenario has one, its benign-novelty `control` variant. Controls are measurements: no method
    learns from them (nothing is reported to the feedback API; no weight or memory changes).
@@ -48,7 +49,7 @@ from ..evaluation.rollouts import expert_rollout, policy_processors, run_attempt
 from ..evaluation.validity_check import CONTEXT, shift_step
 from ..kvm.configuration import KvmConfig
 from ..kvm.supervisor import FEEDBACK_LR
-from ..policy.feedback import FOCUSED_LR, chunk_targets, skill_by_name
+from ..policy.feedback import FOCUSED_LR, skill_by_name
 from .continual import ContinualRun, SequenceConfig
 from .lock import hold
 from .resume import check_settings
@@ -60,7 +61,9 @@ KVM_METHODS: dict[str, dict[str, Any]] = {
     "no_smart_gate": {"smart_gate": False},
     "no_energy_model": {"risk_model": "bce"},
 }
-PEER_METHODS = ("act",)
+# LeRobot's own policies, compared as they come: each row starts from the final checkpoint of the sequence method
+# that a `BenchmarkConfig` field names (a method of the sequence training the LeRobot policy type of the same name).
+PEER_METHODS: dict[str, str] = {"act": "act_method", "diffusion": "diffusion_method"}
 # Diagnostic rows on the `coda_kvm` pool checkpoint, KVM off, told what no method may know (the variant, where the
 # shift shows): privileged, reported apart and never counted as methods. `oracle_skill` forces the scenario's safe
 # skill from the first step of a shifted episode (its prior skill elsewhere); `oracle_switch` forces the prior skill
@@ -82,6 +85,7 @@ class BenchmarkConfig:
     methods: list[str] = field(default_factory=lambda: list(KVM_METHODS))
     kvm_method: str = "coda_kvm"  # the sequence's method whose final checkpoint the validity methods start from
     act_method: str = "act_joint"  # the sequence's method whose final checkpoint the `act` row starts from
+    diffusion_method: str = "diffusion_joint"  # ... and the `diffusion` row
     runs: int = 1
     passes: int = 3
     seed: int = 0
@@ -122,6 +126,10 @@ class BenchmarkConfig:
     def from_json(cls, path: str | Path) -> "BenchmarkConfig":
         return build(cls, read_json(path), str(path))
 
+    def pool_method(self, method: str) -> str:
+        """The sequence method whose final checkpoint a row starts from: a peer's own, else `kvm_method`."""
+        return getattr(self, PEER_METHODS[method]) if method in PEER_METHODS else self.kvm_method
+
 
 # An episode's role within one scenario of one pass: its seed is `episode_seed(...) + offset`.
 SEED_OFFSETS = {"attempt_1": 0, "demonstration": 1, "prior": 2, "control": 3, "attempt_2": 4}
@@ -155,8 +163,10 @@ def load_policy(
     elif method in ORACLE_METHODS:
         policy_class = CodaKvmPolicy
         config.kvm = replace(config.kvm, enabled=False)
-    else:
-        from lerobot.policies.act.modeling_act import ACTPolicy as policy_class
+    else:  # a peer: the LeRobot policy class of the checkpoint's own type
+        from lerobot.policies.factory import get_policy_class
+
+        policy_class = get_policy_class(config.type)
     policy = policy_class.from_pretrained(weights or checkpoint, config=config)
     policy.eval()
     pre, post = policy_processors(policy, checkpoint)
@@ -193,6 +203,21 @@ def on_kvm_pool(method: str) -> bool:
     return method in KVM_METHODS or method in ORACLE_METHODS
 
 
+def pool_family(method: str) -> str:
+    """The key of the pool checkpoint a row starts from: "kvm" for the rows on the `coda_kvm` pool, else the peer's
+    own name (each peer trains its own sequence method)."""
+    return "kvm" if on_kvm_pool(method) else method
+
+
+def delta_windows(values: Tensor, deltas: Sequence[int]) -> tuple[Tensor, Tensor]:
+    """Windows [T, D, ...] of a trajectory [T, ...] at offsets `deltas` from each step, as LeRobot's dataset draws
+    them for a policy's `*_delta_indices` (out-of-episode offsets copy the nearest frame), and their padding mask
+    [T, D] (True where the offset leaves the episode)."""
+    t_len, device = values.shape[0], values.device
+    idx = torch.arange(t_len, device=device).unsqueeze(1) + torch.as_tensor(list(deltas), device=device)
+    return values[idx.clamp(0, t_len - 1)], (idx < 0) | (idx >= t_len)
+
+
 class SwitchOnExit:
     """`oracle_switch`'s skill weights: the prior skill's until the step whose raw sensed context first leaves the
     envelope, the safe skill's from that step on (`switch_step`)."""
@@ -209,12 +234,16 @@ class SwitchOnExit:
 
 def finetune(policy: Any, demo: dict[str, Any], steps: int, lr: float, batch_size: int) -> dict[str, float]:
     """A baseline's use of the feedback budget: `steps` Adam steps of its own training loss on the corrective
-    demonstration, on the parameters its checkpoint trains (a `coda_kvm` pool trains its latest skill only)."""
+    demonstration, on the parameters its checkpoint trains (a `coda_kvm` pool trains its latest skill only). Each
+    demonstration step becomes a training frame with the observation history and action targets the policy's
+    config asks for (`observation_delta_indices`, `action_delta_indices`), as `lerobot-train` would draw it."""
     if steps <= 0:
         return {}
-    keys = [k for k in policy.config.input_features if isinstance(demo.get(k), torch.Tensor)]
-    frames: dict[str, Any] = {k: demo[k] for k in keys}
-    frames["action"], frames["action_is_pad"] = chunk_targets(demo["action"], policy.config.chunk_size)
+    config = policy.config
+    keys = [k for k in config.input_features if isinstance(demo.get(k), torch.Tensor)]
+    history = config.observation_delta_indices
+    frames: dict[str, Any] = {k: demo[k] if history is None else delta_windows(demo[k], history)[0] for k in keys}
+    frames["action"], frames["action_is_pad"] = delta_windows(demo["action"], config.action_delta_indices)
     tasks = list(demo["task"])
     params = [p for p in policy.parameters() if p.requires_grad]
     optimizer = torch.optim.Adam(params, lr=lr)
@@ -232,6 +261,7 @@ def finetune(policy: Any, demo: dict[str, Any], steps: int, lr: float, batch_siz
                 batch = {k: v[idx] for k, v in frames.items()}
                 batch["task"] = [tasks[i] for i in idx.tolist()]
                 loss, info = policy.forward(batch)
+                info = info or {"loss": loss.item()}  # Diffusion Policy reports no loss terms of its own
                 optimizer.zero_grad()
                 loss.backward()
                 optimizer.step()
@@ -394,29 +424,29 @@ class Benchmark:
         self.sequence = SequenceConfig.from_json(self.sequence_path)
         if config.dataset_root:
             self.sequence.dataset_root = config.dataset_root
-        needed = [config.kvm_method] if any(on_kvm_pool(m) for m in config.methods) else []
-        if "act" in config.methods:
-            needed.append(config.act_method)
-        known = {m.name for m in self.sequence.methods}
-        missing = [m for m in needed if m not in known]
+        # pool checkpoint key ("kvm" or a peer's name) -> the sequence method that trains it
+        self.families = {pool_family(m): config.pool_method(m) for m in config.methods}
+        known = {m.name: m for m in self.sequence.methods}
+        missing = [m for m in self.families.values() if m not in known]
         if missing:
             raise ValueError(f"{config.sequence} has no methods {missing} (it has {sorted(known)})")
-        self.pool_methods = needed
+        for peer in set(self.families) & set(PEER_METHODS):
+            source = known[self.families[peer]]
+            if source.policy != peer:
+                raise ValueError(
+                    f"{PEER_METHODS[peer]}={source.name!r} trains a {source.policy!r} policy, not {peer!r}"
+                )
+        self.pool_methods = list(dict.fromkeys(self.families.values()))
         self._envelopes: dict[tuple[int, str], Envelope] = {}
         self.pool = ContinualRun(
-            self.sequence, self.out / "pool", self.launcher, str(self.sequence_path), needed, device
+            self.sequence, self.out / "pool", self.launcher, str(self.sequence_path), self.pool_methods, device
         )
 
     # ------------------------------------------------------------------ pool
     def grow_pool(self) -> tuple[dict[str, Any], dict[str, Path]]:
         """The continual-learning sequence (resumable), and the pool checkpoint of each method family."""
         results = self.pool.run()
-        checkpoints = {}
-        if self.config.kvm_method in self.pool_methods:
-            checkpoints["kvm"] = self.pool.final_checkpoint(self.config.kvm_method)
-        if "act" in self.config.methods:
-            checkpoints["act"] = self.pool.final_checkpoint(self.config.act_method)
-        return results, checkpoints
+        return results, {family: self.pool.final_checkpoint(m) for family, m in self.families.items()}
 
     # ------------------------------------------------------------------ one (method, run)
     def run_method(self, method: str, run: int, checkpoint: Path, bar: tqdm | None = None) -> dict[str, Any]:
@@ -678,7 +708,7 @@ class Benchmark:
                     done[method, run] = json.loads(path.read_text())
                     bar.update(per_unit)
                 else:
-                    pending.append((method, run, checkpoints["kvm" if on_kvm_pool(method) else "act"]))
+                    pending.append((method, run, checkpoints[pool_family(method)]))
         if self.workers == 1 or len(pending) < 2:
             for method, run, checkpoint in pending:
                 done[method, run] = self.finish_run(method, run, checkpoint, bar)

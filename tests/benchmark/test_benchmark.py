@@ -18,8 +18,10 @@ from lerobot_kvm.benchmark.protocol import (
     Benchmark,
     BenchmarkConfig,
     SwitchOnExit,
+    delta_windows,
     episode_fields,
     episode_seed,
+    finetune,
     learned_skill,
     load_policy,
     uncovered_scenarios,
@@ -27,6 +29,7 @@ from lerobot_kvm.benchmark.protocol import (
 from lerobot_kvm.benchmark.report import coverage_lines
 from lerobot_kvm.envs.scenario import SCENARIOS
 from lerobot_kvm.evaluation.rescue import Envelope
+from lerobot_kvm.policy.feedback import chunk_targets
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
@@ -42,7 +45,7 @@ def test_every_shipped_benchmark_config_loads_and_names_a_shipped_sequence():
 @pytest.mark.parametrize(
     "change, message",
     [
-        ({"methods": ["coda_kvm", "diffusion"]}, "diffusion"),
+        ({"methods": ["coda_kvm", "pi0"]}, "pi0"),
         ({"scenarios": ["egg_vs_stone", "teapot"]}, "teapot"),
         ({"controls": ["prior", "sideways"]}, "sideways"),
         ({"passes": 0}, "passes"),
@@ -111,6 +114,45 @@ def test_full_benchmark_covers_the_whole_suite_with_every_method():
     full = BenchmarkConfig.from_json(CONFIGS / "benchmark_full.json")
     assert sorted(full.scenarios) == sorted(SCENARIOS) and full.runs >= 5 and full.passes == 3
     assert set(full.methods) == {*KVM_METHODS, *PEER_METHODS, *ORACLE_METHODS}
+
+
+def test_every_row_starts_from_the_final_checkpoint_of_its_own_sequence_method(tmp_path):
+    full = BenchmarkConfig.from_json(CONFIGS / "benchmark_full.json")
+    bench = Benchmark(replace(full, sequence=str(CONFIGS / "cl_full.json")), tmp_path)
+    assert bench.families == {"kvm": "coda_kvm", "act": "act_joint", "diffusion": "diffusion_joint"}
+    assert [full.pool_method(m) for m in ("coda_prompt", "oracle_skill", "act", "diffusion")] == [
+        "coda_kvm",
+        "coda_kvm",
+        "act_joint",
+        "diffusion_joint",
+    ]
+    only_peers = Benchmark(replace(full, sequence=str(CONFIGS / "cl_full.json"), methods=["diffusion"]), tmp_path)
+    assert only_peers.pool_methods == ["diffusion_joint"]  # no coda_kvm pool grown for a peer alone
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({}, r"has no methods \['diffusion_joint'\]"),  # the tiny pool trains no Diffusion Policy
+        ({"diffusion_method": "act_joint"}, r"diffusion_method='act_joint' trains a 'act' policy, not 'diffusion'"),
+        ({"methods": ["act"], "act_method": "coda_kvm"}, r"act_method='coda_kvm' trains a 'coda_kvm' policy"),
+    ],
+)
+def test_a_peer_row_needs_a_sequence_method_that_trains_its_own_policy_type(change, message, tmp_path):
+    config = BenchmarkConfig("b", str(CONFIGS / "cl_tiny.json"), ["book"], methods=["coda_kvm", "diffusion"])
+    with pytest.raises(ValueError, match=message):
+        Benchmark(replace(config, **change), tmp_path)
+
+
+def test_delta_windows_draw_history_and_targets_as_the_dataset_does_and_match_act_s_chunks():
+    values = torch.arange(4.0).unsqueeze(1)  # [T=4, 1]
+    windows, pad = delta_windows(values, [-1, 0, 1])
+    assert windows.squeeze(-1).tolist() == [[0, 0, 1], [0, 1, 2], [1, 2, 3], [2, 3, 3]]  # edges copy the frame
+    assert pad.tolist() == [[True, False, False], [False, False, False], [False, False, False], [False, False, True]]
+    actions = torch.randn(7, 5)
+    chunks, chunk_pad = chunk_targets(actions, 3)  # what the ACT and coda_kvm baselines fine-tuned on before
+    windows, pad = delta_windows(actions, range(3))
+    assert torch.equal(windows, chunks) and torch.equal(pad, chunk_pad)
 
 
 def test_oracle_switch_forces_the_prior_skill_until_the_context_leaves_the_envelope_then_the_safe_one():
@@ -375,3 +417,54 @@ def test_a_resumed_benchmark_refuses_settings_that_change_its_episodes(tmp_path,
         Benchmark(replace(config, passes=3), tmp_path, progress=False).run()
     with pytest.raises(ValueError, match=r"\(device: \"cpu\" -> \"cuda\"\)"):  # its timings name one device
         Benchmark(config, tmp_path, progress=False, device="cuda").run()
+
+
+# The full configuration's Diffusion Policy shrunk for a test: two denoising steps, a small U-Net, a short horizon.
+TINY_DIFFUSION = [
+    "--policy.type=diffusion",
+    "--policy.pretrained_backbone_weights=null",
+    "--policy.use_group_norm=true",
+    "--policy.n_obs_steps=2",
+    "--policy.horizon=8",
+    "--policy.n_action_steps=4",
+    "--policy.drop_n_last_frames=3",
+    "--policy.down_dims=[16,32]",
+    "--policy.crop_shape=[84,84]",
+    "--policy.noise_scheduler_type=DDIM",
+    "--policy.num_inference_steps=2",
+]
+
+
+@pytest.mark.slow
+def test_a_diffusion_policy_trained_by_lerobot_train_acts_and_fine_tunes_as_a_peer_row(tmp_path) -> None:
+    """The `diffusion` row's path, on a policy `lerobot-train` trained for 2 steps on one recorded episode: loaded
+    by `load_policy`, one attempt through `run_attempt` (LeRobot's processors and `select_action` with its
+    observation history), and one feedback step of `finetune` on a corrective demonstration."""
+    pytest.importorskip("diffusers", reason="LeRobot's Diffusion Policy needs lerobot[diffusion]")
+    from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+
+    from lerobot_kvm.benchmark.lerobot_commands import run_logged, train_command
+    from lerobot_kvm.datasets.recorder import RecordingSpec, RecordItem, record_dataset
+    from lerobot_kvm.envs.env import KvmObsolescenceEnv
+    from lerobot_kvm.evaluation.rollouts import expert_rollout, run_attempt
+
+    spec = RecordingSpec(name="tiny_diffusion", items=[RecordItem("egg_vs_stone", "prior", "firm_grasp", 1)])
+    record_dataset(spec, tmp_path / "data", repo_id="local/tiny_diffusion", progress=False)
+    cmd = train_command(tmp_path / "data", "local/tiny_diffusion", tmp_path / "train", 2, 4, 0, policy=TINY_DIFFUSION)
+    run_logged(cmd, tmp_path / "train.log")
+    policy, pre, post = load_policy("diffusion", tmp_path / "train" / "checkpoints" / "last" / "pretrained_model")
+    assert isinstance(policy, DiffusionPolicy) and not policy.training
+
+    env = KvmObsolescenceEnv("egg_vs_stone", variant="shifted")
+    try:
+        attempt = run_attempt(policy, env, pre, post, seed=1)
+        demo, _ = expert_rollout(env, "gentle_grasp", pre, seed=2)
+    finally:
+        env.close()
+    assert attempt["outcome"] in ("success", "failure", "catastrophe") and attempt["trace"] is None
+    assert episode_fields(attempt)["series"] is None
+    before = {k: v.clone() for k, v in policy.state_dict().items()}
+    info = finetune(policy, demo, steps=1, lr=1e-3, batch_size=4)
+    assert set(info) == {"loss"} and np.isfinite(info["loss"])
+    assert any(not torch.equal(v, before[k]) for k, v in policy.state_dict().items())
+    assert not policy.training and all(len(q) == 0 for q in policy._queues.values())  # reset for the next attempt

@@ -25,6 +25,29 @@ def test_default_sequence_has_distinct_tasks_from_prior_variants_and_safe_skills
     assert {m.mode for m in config.methods if m.policy == "act"} == {"sequential", "joint"}
 
 
+def test_shipped_diffusion_policies_are_cpu_sized_and_valid_for_lerobot():
+    """Every Diffusion Policy a shipped sequence trains: LeRobot's own checks of its settings, no download (no
+    pretrained backbone), a crop inside the 96x96 camera, few denoising steps, and the action queue LeRobot's
+    `select_action` needs (n_action_steps <= horizon - n_obs_steps + 1, the last frames dropped to match)."""
+    import draccus
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+
+    found = 0
+    for path in sorted(CONFIGS.glob("cl_*.json")):
+        for method in SequenceConfig.from_json(path).methods:
+            if method.policy != "diffusion":
+                continue
+            found += 1
+            args = [a.replace("--policy.", "--", 1) for a in method.args]
+            config = draccus.parse(DiffusionConfig, args=args)
+            assert config.pretrained_backbone_weights is None, method.name
+            assert config.crop_shape is not None and max(config.crop_shape) <= 96, method.name
+            assert config.num_inference_steps is not None and config.num_inference_steps <= 10, method.name
+            assert config.n_action_steps <= config.horizon - config.n_obs_steps + 1, method.name
+            assert config.drop_n_last_frames == config.horizon - config.n_action_steps - config.n_obs_steps + 1
+    assert found >= 1  # the full configuration's `diffusion_joint`
+
+
 def test_task_names_and_instructions():
     task = TaskSpec("chip_bag", skill="safe", instruction="skill")
     assert task.name == "chip_bag.gentle_grasp"
@@ -40,7 +63,7 @@ def test_task_names_and_instructions():
         (lambda: TaskSpec("egg_vs_stone", variant="sideways"), "sideways"),
         (lambda: TaskSpec("egg_vs_stone", skill="clumsy"), "clumsy"),
         (lambda: TaskSpec("egg_vs_stone", instruction="loud"), "loud"),
-        (lambda: MethodSpec("m", policy="diffusion"), "diffusion"),
+        (lambda: MethodSpec("m", policy="pi0"), "pi0"),
         (lambda: MethodSpec("m", mode="shuffled"), "shuffled"),
         (lambda: SequenceConfig("s", [TaskSpec("book"), TaskSpec("book")], [MethodSpec("m")]), "distinct"),
         (lambda: SequenceConfig("s", [TaskSpec("book")], [MethodSpec("m", checkpoints_from="later")]), "later"),
