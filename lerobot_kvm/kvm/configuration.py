@@ -10,7 +10,7 @@ N_p in `attribution`, the pruning window in `metabolism`). On the command line e
 
 from dataclasses import dataclass, field
 
-RISK_MODELS = ("energy", "bce", "neighbour")
+RISK_MODELS = ("energy", "bce", "neighbour", "novelty")
 
 
 @dataclass

@@ -149,6 +149,8 @@ class KnowledgeValidityModule(nn.Module):
         model = risk_model or cfg.risk_model
         if torch.is_grad_enabled():  # learning: through the modules
             energy = self.risk_energy(self.joint.all_skills(mu, torch.arange(n_skills, device=mu.device)), model)
+        elif model == "novelty":  # the generic OOD monitor of §4.3: wherever the gate opens, nothing is valid
+            energy = mu.new_full((mu.shape[0], n_skills), ENERGY_MAX)
         elif model == "bce":
             energy = RiskClassifier.energy_equivalent(self.scorer(n_skills, True)(mu), GAMMA, L0)
         else:

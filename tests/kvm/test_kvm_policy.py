@@ -376,3 +376,15 @@ def test_a_huge_finite_context_is_refused_by_name(make_policy, make_batch):
     policy.reset()
     with pytest.raises(ValueError, match=r"observation 'observation.context' has a value of magnitude 1e\+30"):
         policy.select_action(batch)
+
+
+def test_the_novelty_detector_suppresses_every_skill_where_the_gate_opens(make_policy, make_batch, make_kvm_config):
+    policy = two_skill_policy(make_policy, kvm=make_kvm_config(risk_model="novelty"))
+    batch = make_batch(policy.config, with_action=False)
+    policy.kvm.set_gate_override("open")
+    policy.predict_action_chunk(batch)
+    tele = policy.kvm_telemetry
+    assert (tele.validity < TAU_V).all() and tele.abstained.all()  # novel: nothing is trusted, the policy holds
+    policy.kvm.set_gate_override("closed")
+    chunk = policy.predict_action_chunk(batch)
+    assert not policy.kvm_telemetry.abstained.any() and torch.equal(chunk, core_chunk(policy, batch))
