@@ -17,8 +17,11 @@ def test_firm_grasp_spills_the_opened_carton_and_lifts_the_sealed_one(run_expert
     run = run_expert("container", "prior", "firm_grasp", seed=0, probe=finger_width)
     info, sealed, env = run.info, run.probes, run.env
     assert info["is_success"] and not info["catastrophe"] and env.scenario.spilled == 0
-    # Rule 3: the opened carton gives way under the same squeeze.
+    # Rule 3: the opened carton gives way under the same squeeze, in time to act: its panels yield (the fingers
+    # close past where the sealed carton stopped them) well before the milk reaches the opening.
     assert max(opened) > max(sealed) + 0.01
+    gives_way = next(t for t, width in enumerate(opened) if width > max(sealed) + 0.002)
+    assert len(opened) - gives_way >= 10
 
 
 def test_gentle_grasp_lifts_the_opened_carton_without_spilling(run_expert):

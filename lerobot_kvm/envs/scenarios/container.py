@@ -10,9 +10,11 @@ mm of squeeze on a closed carton means tens of newtons), modelled as a panel pre
 grip force, so a firm grasp lifts it safely. Opened, the air vents, the same squeeze
 moves the panels in, the liquid rises above the opening's lower edge and pours out: a spill.
 The safe skill grasps gently (below the cardboard's own preload), which still lifts the carton.
-The shift shows in the sensed finger travel under a firm squeeze.
+The firm grasp builds its squeeze up after contact; the shift shows in the sensed finger travel as the opened
+carton's panels give way, several control steps before the milk reaches the opening.
 
-Particle scene: CG solver with a pyramidal cone and a capped iteration count.
+Particle scene: CG solver with MuJoCo's elliptic friction cone (a pyramidal cone let the fingers chatter on the
+sealed carton's stiff panels, so prior runs lifted at steps 40 to 51) and 100 solver iterations.
 """
 
 from functools import partial
@@ -21,18 +23,23 @@ import mujoco
 import numpy as np
 
 from ..catalogue import SCENARIO_INFOS
-from ..experts import GraspLiftExpert
+from ..experts import GraspLiftExpert, touching
 from ..grasp_lift import GraspLiftScenario
 from ..physics import Physics, set_free_body_pose
 from ..scenario import StepOutcome, register_scenario
 from ..scene import SceneParts
 
-WX, W = 0.036, 0.024  # interior half length (x) and half width (y, between the squeezable panels)
+# Interior half length (x) and half width (y, between the squeezable panels). Four drops fill the length (61.6 of
+# 62 mm), so a squeeze that raises the liquid also presses it against the back wall and out of the opening (with
+# 72 mm it rose in columns and never left); three drops leave 5.8 mm of the width free, so an opened carton's
+# panels first give way freely (the finger travel that shows the shift) before the liquid resists.
+WX, W = 0.031, 0.026
 H = 0.075  # interior height: the liquid fills it to about 4.8 cm
 T = 0.003  # wall half thickness
 BOTTOM = 2 * T  # interior floor height
 TRAVEL = 0.014  # how far each side panel can be pushed in
-LIP = 0.048  # height of the pour opening's lower edge in the back wall (the opening reaches the top)
+LIP = 0.040  # height of the pour opening's lower edge in the back wall (the opening reaches the top): just above
+# the resting liquid's top drops, which a squeeze of the open carton lifts over it
 R = 0.0075  # liquid particle radius
 N_DROPS = 36
 _PITCH = 2 * R + 0.0004
@@ -55,15 +62,46 @@ LIFT_HEIGHT = 0.05
 # Side panels: (preload N, stiffness N/m). Sealed, squeezing the panels compresses the closed
 # headspace, modelled as a preload no grip reaches. Opened, the air vents through the opening
 # and only the cardboard resists.
-PANEL_SPRING = {"prior": (60.0, 3000.0), "shifted": (8.0, 300.0)}
+# and only the cardboard resists: stiff enough (2500 N/m) that the rising squeeze pushes the panels in over several
+# control steps (at 300 N/m they slammed onto the liquid within one).
+PANEL_SPRING = {"prior": (60.0, 3000.0), "shifted": (8.0, 2500.0)}
+# The firm grasp's squeeze builds up: the fingers close at CLOSE_GRIP (4 N, below either carton's preload) until they
+# touch, then the grip rises by SQUEEZE_RATE per control step, and the lift waits until the fingers close slower
+# than STILL m/s. Measured (8 seeds): the opened carton's panels give way 3 steps after contact, its milk leaves
+# 13-17 steps after that (the liquid jams, then yields under the full squeeze); a switch to the gentle grasp up to
+# 10 steps after the panels give way still saves it.
+CLOSE_GRIP = 0.1
+SQUEEZE_RATE = 0.06
+STILL = 0.01
 _CARTON_RGB = np.array([0.90, 0.92, 0.95])
 _TRIM_RGB = np.array([0.20, 0.40, 0.80])
+
+
+class SqueezeExpert(GraspLiftExpert):
+    """A grasp whose squeeze builds up: the fingers close gently (`CLOSE_GRIP`) until they touch, then the grip
+    rises by `SQUEEZE_RATE` per step up to `grip`; the lift waits until the fingers have stopped closing."""
+
+    def __init__(self, body: str, grip: float, **grasp: float) -> None:
+        super().__init__(body, grip, still=STILL, **grasp)
+        self.squeezing = 0  # control steps since the fingers first touched
+
+    def act(self, physics: Physics) -> np.ndarray:
+        action = super().act(physics)
+        if action[4] > 0:  # closing or holding
+            if self.squeezing or touching(physics):
+                self.squeezing += 1
+            action[4] = min(self.grip, CLOSE_GRIP + SQUEEZE_RATE * self.squeezing)
+        return action
 
 
 @register_scenario
 class Container(GraspLiftScenario):
     info = SCENARIO_INFOS["container"]
-    skills = {"firm_grasp": partial(GraspLiftExpert, grip=0.75), "gentle_grasp": partial(GraspLiftExpert, grip=0.15)}
+    # The firm grasp squeezes with the full grip and eases the carton off the table (3 cm at 3 mm per step).
+    skills = {
+        "firm_grasp": partial(SqueezeExpert, grip=1.0, liftoff=0.03, liftoff_step=0.003),
+        "gentle_grasp": partial(GraspLiftExpert, grip=0.15),
+    }
     body, lift_height = "carton", LIFT_HEIGHT
     grasp = {"grasp_height": BOTTOM + H + 2 * T - 0.031}  # 31 mm below the carton's top
 
@@ -119,14 +157,12 @@ class Container(GraspLiftScenario):
     </body>
     {liquid}""",
             contact='<exclude body1="panel_l" body2="panel_r"/>',
-            option='solver="CG" iterations="30" tolerance="1e-6"',
+            option='solver="CG" iterations="100" tolerance="1e-6"',
         )
 
     def reset(self, physics: Physics, variant: str, rng: np.random.Generator) -> None:
         super().reset(physics, variant, rng)
         model, data = physics.model, physics.data
-        # Particle scene: CG with a pyramidal cone (the shared <option> fixes cone="elliptic" in its XML).
-        model.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
         self._n = N_DROPS
         self._milk_bodies = np.array([model.body(f"milk_{n}").id for n in range(self._n)])
         self._bid = model.body("carton").id

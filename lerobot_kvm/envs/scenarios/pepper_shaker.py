@@ -1,18 +1,20 @@
 """B7 pepper shaker (capped vs uncapped): the shake that sprinkles through a perforated cap empties an open one.
 
 The robot holds a square pepper shaker (a tool attached to its hand) whose top points up and
-away from the camera. In the prior variant the top is a perforated cap with two small holes:
-grains only trickle through when the shaker is turned well over and shaken. In the shifted
-variant the perforated insert is missing (the camera cannot see the shaker's top): the same
-turn-and-shake pours out nearly everything.
+away from the camera. Its top is a shoulder around a neck. In the prior variant a perforated
+insert with one small hole sits in the neck: grains only come through when the shaker is turned
+well over and shaken. In the shifted variant the insert is missing (the camera cannot see the
+shaker's top): the same turn-and-shake pours out nearly everything.
 
 Grains are small frictionless spheres on three slides each, with per-grain damping for a
 powder's sluggish flow; the scene uses the CG solver with a pyramidal friction cone.
 
-Prior skill: turn the shaker far over above the plate, shake a fixed number of times, turn back.
-Safe skill: tilt slowly and stop as soon as pepper comes out; only if nothing comes at full
-tilt, give small gentle shakes. The shift shows in the wrist force and torque: an open shaker
-starts losing weight (and shifting its load) at a much smaller tilt.
+Prior skill: tilt the shaker just past horizontal above the plate and hold it there, turn it
+far over, shake it with the wrist a fixed number of times, turn back. Safe skill: tilt slowly and
+stop as soon as pepper comes out; only if nothing comes at full tilt, give small gentle shakes.
+The shift shows in the z actuator's effort, which carries the pepper's weight: during the old
+skill's shallow hold an open shaker pours out the grains above its neck's edge (their weight
+leaves the hand) while a capped one keeps them, well before turning it over empties it.
 """
 
 from functools import partial
@@ -25,26 +27,53 @@ from ..catalogue import SCENARIO_INFOS
 from ..experts import wrist_pitch
 from ..physics import Physics
 from ..scenario import Expert, Scenario, StepOutcome, register_scenario
-from ..scene import SceneParts
+from ..scene import GRIPPER_HOME, SceneParts
 
 S = 0.015  # interior half width of the square shaker
 L = 0.035  # interior half length
 T = 0.002  # wall half thickness
 AXIS_TILT = -1.0472  # the shaker's axis leans 60 deg from vertical, top towards -x (away from the camera)
 CENTRE = (0.0, 0.0, -0.045)  # shaker centre in the hand frame
-HOLE = (0.005, 0.007)  # hole half size and hole centre offset (local x) in the perforated cap
+# The top: a shoulder around a neck (half size NECK) that holds back the pepper below its edge when the shaker is
+# held just past horizontal, and in the neck the perforated insert, one central hole of half size HOLE (15 mm: the
+# 8 mm grains pass when the shaker is turned over and shaken; the former two 10 mm holes needed 35 mm dips).
+NECK = 0.0135
+HOLE = 0.0075
 R = 0.004  # grain radius
 N_GRAINS = 36
 GRAIN_DAMPING = 0.06  # N s/m per slide: a powder's slow flow
 PLATE_R = 0.07
 MIN_ON_PLATE = 2
 MAX_OUT = 12  # more grains than this out of the shaker: the pepper is spilled
+# The old skill: tilt at PRIOR_TILT rad per control step to SHALLOW (the shaker's axis 8 deg below horizontal), hold
+# there until HOLD steps into the tilt, turn fully over, shake with the wrist (WIGGLE rad), turn back. Measured (8
+# seeds): an open shaker pours the few grains above its neck's lower edge during the hold (the wrist feels them go
+# at step 27-29) and spills only once turned over (steps 37-43); a closed one loses none until it is turned over.
+# The hand works at its home height and shakes by the wrist, not by dips of the hand: the z actuator's effort then
+# reads the pepper's weight alone (the vertical move and 35 mm dips swung it by tens of newtons, 5 % of which hid
+# a 3 g grain from the envelope).
+PRIOR_TILT = 0.05
+SHALLOW = -0.66
+HOLD = 30
+WIGGLE = 0.3
 _SHAKER_RGB = np.array([0.80, 0.78, 0.74])
 _CAP_RGB = np.array([0.55, 0.56, 0.60])
 
 
-def _quat_y(angle: float) -> np.ndarray:
-    return np.array([np.cos(angle / 2), 0.0, np.sin(angle / 2), 0.0])
+def _frame(prefix: str, outer: float, inner: float, z: float, rgb: str) -> str:
+    """Four box strips (geoms `prefix`_a.._d) filling a square of half size `outer` around a square hole `inner`."""
+    side, mid = (outer - inner) / 2, (outer + inner) / 2
+    strips = [
+        ("a", outer, side, 0.0, mid),
+        ("b", outer, side, 0.0, -mid),
+        ("c", side, inner, mid, 0.0),
+        ("d", side, inner, -mid, 0.0),
+    ]
+    return "".join(
+        f'\n          <geom name="{prefix}_{n}" type="box" size="{sx} {sy} {T}" pos="{px} {py} {z}" rgba="{rgb} 1"'
+        f' mass="0.002" solref="0.004 1"/>'
+        for n, sx, sy, px, py in strips
+    )
 
 
 class ShakeExpert(Expert):
@@ -56,7 +85,7 @@ class ShakeExpert(Expert):
     """
 
     FULL_TILT = -1.65
-    HOVER_Z = 0.16
+    HOVER_Z = GRIPPER_HOME[2]
 
     def __init__(self, scenario: "PepperShaker", gentle: bool) -> None:
         self.scenario = scenario  # the demonstrator sees the plate and the pepper that came out
@@ -87,16 +116,26 @@ class ShakeExpert(Expert):
             if np.linalg.norm(goal - pos[:3]) < 0.004 and self.timer > 6:
                 self.phase, self.timer = "tilt", 0
         elif self.phase == "tilt":
-            rate = (0.03 if self.pitch < -0.4 else 0.1) if self.gentle else 0.25
-            self.pitch = max(self.FULL_TILT, self.pitch - rate)
-            if self.gentle and out > self.out_before:
-                self.phase, self.timer = "back", 0
-            elif self.pitch <= self.FULL_TILT and self.timer > 2:
+            if not self.gentle:
+                self.pitch = max(SHALLOW, self.pitch - PRIOR_TILT)
+                if self.timer > HOLD:
+                    self.phase, self.timer = "tip", 0
+            else:
+                self.pitch = max(self.FULL_TILT, self.pitch - (0.03 if self.pitch < -0.4 else 0.1))
+                if out > self.out_before:
+                    self.phase, self.timer = "back", 0
+                elif self.pitch <= self.FULL_TILT and self.timer > 2:
+                    self.phase, self.timer = "shake", 0
+        elif self.phase == "tip":
+            self.pitch = max(self.FULL_TILT, self.pitch - PRIOR_TILT)
+            if self.pitch <= self.FULL_TILT and self.timer > 2:
                 self.phase, self.timer = "shake", 0
         elif self.phase == "shake":
-            # One shake = a quick dip and return of the hand (4 control steps).
-            amp = 0.02 if self.gentle else 0.035
-            dz = -amp if self.timer % 4 in (1, 2) else 0.0
+            # One shake (4 control steps): a quick dip and return of the hand, or for the old skill of the wrist.
+            if self.gentle:
+                dz = -0.02 if self.timer % 4 in (1, 2) else 0.0
+            else:
+                self.pitch = self.FULL_TILT + (WIGGLE if self.timer % 4 in (1, 2) else 0.0)
             if self.timer % 4 == 0:
                 self.shakes += 1
             if self.gentle and out >= MIN_ON_PLATE or not self.gentle and self.shakes >= 3:
@@ -128,20 +167,8 @@ class PepperShaker(Scenario):
         cap = " ".join(f"{v:.3f}" for v in _CAP_RGB)
         wall = f'rgba="{rgb} 1" mass="0.01" solref="0.004 1"'
         cz = L + T
-        h, c = HOLE
-        # Perforated cap: two square holes at local x = +-c, built from solid strips around them.
-        strips = [
-            ("cap_a", S, (S - h) / 2, 0.0, (S + h) / 2),
-            ("cap_b", S, (S - h) / 2, 0.0, -(S + h) / 2),
-            ("cap_c", (S - c - h) / 2, h, (S + c + h) / 2, 0.0),
-            ("cap_d", (S - c - h) / 2, h, -(S + c + h) / 2, 0.0),
-            ("cap_e", c - h, h, 0.0, 0.0),
-        ]
-        cap_geoms = "".join(
-            f'\n          <geom name="{n}" type="box" size="{sx} {sy} {T}" pos="{px} {py} {cz}" rgba="{cap} 1"'
-            f' mass="0.002" solref="0.004 1"/>'
-            for n, sx, sy, px, py in strips
-        )
+        shoulder = _frame("neck", S, NECK, cz, cap)
+        insert = _frame("cap", NECK, HOLE, cz, cap)
         hand = f"""
         <body name="shaker" pos="{CENTRE[0]} {CENTRE[1]} {CENTRE[2]}" euler="0 {AXIS_TILT} 0" gravcomp="1">
           <geom name="shaker_px" type="box" size="{T} {S + 2 * T} {L + 2 * T}" pos="{S + T} 0 0" {wall}/>
@@ -150,7 +177,7 @@ class PepperShaker(Scenario):
           <geom name="shaker_ny" type="box" size="{S} {T} {L + 2 * T}" pos="0 {-S - T} 0" {wall}/>
           <geom name="shaker_bottom" type="box" size="{S} {S} {T}" pos="0 0 {-L - T}" {wall}/>
           <geom name="shaker_band" type="box" size="{S + 2 * T + 0.0005} {S + 2 * T + 0.0005} 0.006"
-                pos="0 0 {L - 0.004}" rgba="{cap} 1" contype="0" conaffinity="0" mass="0"/>{cap_geoms}
+                pos="0 0 {L - 0.004}" rgba="{cap} 1" contype="0" conaffinity="0" mass="0"/>{shoulder}{insert}
         </body>"""
         grains = "".join(
             f"""
@@ -182,7 +209,7 @@ class PepperShaker(Scenario):
         self._grains = np.array([model.body(f"grain_{n}").id for n in range(N_GRAINS)])
         self._plate = model.body("plate").id
         capped = variant != "shifted"
-        for n in ("cap_a", "cap_b", "cap_c", "cap_d", "cap_e"):
+        for n in ("cap_a", "cap_b", "cap_c", "cap_d"):
             g = model.geom(n).id
             # Uncapped: the perforated insert is gone. It faces away from the camera.
             model.geom_contype[g] = model.geom_conaffinity[g] = 1 if capped else 0

@@ -7,12 +7,15 @@ turned steeply down and shaken, every toothpick slides to the end but only the o
 the opening gets out. In the shifted variant the cover has been slid open (invisible from the
 camera): the same tilt and shake sends all of them out.
 
-Toothpicks differ slightly in roughness (their friction coefficients are a shuffled ladder, a
-per-episode nuisance), so a slow tilt sets them sliding one at a time.
+Toothpicks differ in roughness: two are slippery, the rest rough, and the one in front of the
+opening the roughest (the others' order is a per-episode nuisance), so a slow tilt sets them
+sliding one at a time.
 
-Prior skill: tilt steeply, shake, turn back. Safe skill: tilt slowly, hold the angle as soon as a
-toothpick starts sliding, turn back once one is out. The shift shows in the wrist torque and
-force: without the cover nothing stops the sliding toothpicks and the load leaves the hand.
+Prior skill: tilt to a shallow angle and hold it, tip steeply, shake with the wrist, turn back.
+Safe skill: tilt slowly, hold the angle as soon as a toothpick starts sliding, turn back once one
+is out. The shift shows in the z actuator's effort, which carries the toothpicks' weight: during
+the old skill's shallow hold the slippery toothpicks slide out of an open dispenser (their weight
+leaves the hand) but rest against a closed cover, well before the steep tip empties it.
 """
 
 from functools import partial
@@ -25,7 +28,7 @@ from ..catalogue import SCENARIO_INFOS
 from ..experts import wrist_pitch
 from ..physics import Physics
 from ..scenario import Expert, Scenario, StepOutcome, register_scenario
-from ..scene import SceneParts
+from ..scene import GRIPPER_HOME, SceneParts
 
 LX = 0.035  # interior half length (x: along the toothpicks; the cover is at -x)
 N_PICKS = 8
@@ -38,9 +41,22 @@ PICK_R = 0.002
 PICK_HALF = 0.024  # half length of the capsule's cylinder
 HOLE_LANE = 5  # the groove in front of the cover's opening
 HOLE_H = 0.008
-FRICTIONS = 0.30 + 0.05 * np.arange(N_PICKS)  # per-toothpick friction ladder, shuffled per episode
+# Per-toothpick friction. Two slippery ones slide at the old skill's first, shallow tilt (tan 0.42 = 0.45) and the
+# rest only when it tips steeply (tan 0.9 = 1.26); the groove in front of the cover's opening holds the roughest, so
+# that a closed dispenser lets exactly one out, at the steep tip. The others are shuffled per episode (a nuisance).
+FRICTIONS = np.array([0.25, 0.30, 0.50, 0.55, 0.60, 0.65, 0.70, 0.75])
 MAX_OUT = 2  # a toothpick or two is the goal ...
 SPILL_OUT = 4  # ... half the box on the table is a spill
+# The old skill: tilt at TILT_RATE rad per control step to SHALLOW, hold there until HOLD steps into the tilt, tip
+# to STEEP and shake with the wrist (WIGGLE rad). Measured (8 seeds): an open dispenser loses its two slippery
+# toothpicks during the hold (the wrist feels their 12 g go at step 16) and spills only after the steep tip (step 32);
+# a switch to the slow tilt up to step 28 still saves it. The hand works at its home height and shakes by the wrist,
+# not by dips of the hand: the z actuator's effort then reads the toothpicks' weight alone (the vertical move and
+# 15 mm dips swung it by tens of newtons, 5 % of which hid a 6 g toothpick from the envelope).
+TILT_RATE = 0.1
+SHALLOW = -0.42
+HOLD = 20
+WIGGLE = 0.08
 _BOX_RGB = np.array([0.30, 0.55, 0.35])
 _PICK_RGB = np.array([0.93, 0.85, 0.62])
 
@@ -50,10 +66,10 @@ def _lane_y(k: int) -> float:
 
 
 class TiltExpert(Expert):
-    """Hold the dispenser over the saucer; pitch < 0 lowers its back (cover) end.
+    """Hold the dispenser over the saucer at the hand's home height; pitch < 0 lowers its back (cover) end.
 
-    Old skill: tip steeply, give three shakes, level again. Safe skill: tilt slowly, hold the angle
-    while a toothpick is sliding, level again as soon as one is out.
+    Old skill: tilt to a shallow angle and hold it, tip steeply, give three shakes of the wrist, level again. Safe
+    skill: tilt slowly, hold the angle while a toothpick is sliding, level again as soon as one is out.
     """
 
     STEEP = -0.9
@@ -76,9 +92,8 @@ class TiltExpert(Expert):
         d = physics.data
         pos = physics.sensors.arm_position(d)
         saucer = d.body("saucer").xpos
-        goal = np.array([saucer[0] + 0.05, saucer[1], 0.15])
+        goal = np.array([saucer[0] + 0.05, saucer[1], GRIPPER_HOME[2]])
         target = pos[:3] + np.clip(goal - pos[:3], -0.015, 0.015)
-        dz = 0.0
         self.timer += 1
         out = sc.count_out(d)
         if self.phase == "move":
@@ -92,11 +107,15 @@ class TiltExpert(Expert):
                 elif not sliding:
                     self.pitch = max(self.STEEP, self.pitch - 0.02)
             else:
-                self.pitch = max(self.STEEP, self.pitch - 0.3)
-                if self.pitch <= self.STEEP and self.timer > 3:
-                    self.phase, self.timer = "shake", 0
+                self.pitch = max(SHALLOW, self.pitch - TILT_RATE)
+                if self.timer > HOLD:
+                    self.phase, self.timer = "steep", 0
+        elif self.phase == "steep":
+            self.pitch = max(self.STEEP, self.pitch - TILT_RATE)
+            if self.pitch <= self.STEEP and self.timer > 3:
+                self.phase, self.timer = "shake", 0
         elif self.phase == "shake":
-            dz = -0.015 if self.timer % 4 in (1, 2) else 0.0
+            self.pitch = self.STEEP + (WIGGLE if self.timer % 4 in (1, 2) else 0.0)
             if self.timer % 4 == 0:
                 self.shakes += 1
             if self.shakes >= 3:
@@ -104,7 +123,7 @@ class TiltExpert(Expert):
         else:
             self.pitch = min(0.0, self.pitch + 0.15)
         if self.phase != "move":
-            target = goal + [0.0, 0.0, dz]
+            target = goal
         return np.array([*target, self.pitch, -1.0], dtype=np.float32)
 
 
@@ -171,7 +190,9 @@ class ToothpickDispenser(Scenario):
             # Open sliding cover: it no longer blocks the back end, which the camera cannot see.
             model.geom_contype[g] = model.geom_conaffinity[g] = 1 if closed else 0
             model.geom_rgba[g, 3] = 1.0 if closed else 0.0
-        for k, mu in enumerate(rng.permutation(FRICTIONS)):
+        frictions = list(rng.permutation(FRICTIONS[:-1]))
+        frictions.insert(HOLE_LANE, FRICTIONS[-1])  # the roughest in front of the opening
+        for k, mu in enumerate(frictions):
             model.geom_friction[model.geom(f"pick_{k}").id, 0] = mu
         model.body_pos[model.body("saucer").id, :2] = [-0.06 + rng.uniform(-0.012, 0.012), rng.uniform(-0.012, 0.012)]
         rgb = _BOX_RGB + rng.uniform(-0.02, 0.02, 3)
