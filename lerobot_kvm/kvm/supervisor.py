@@ -278,7 +278,7 @@ class KnowledgeValidityModule(nn.Module):
         if all_active is None:
             all_active = bool(active.all())
         candidate = candidates(alphas, active)
-        common = dict(sigma2=sigma2, tau=tau, gate=gate, alpha=alphas, active=active)
+        common = dict(sigma2=sigma2, tau=tau, gate=gate, alpha=alphas, active=active, candidate=candidate)
         anywhere, everywhere = _spread(gate)
         if cfg.force_validity is None and not anywhere:  # closed: v = 1 for every skill in force
             v = active.to(sigma2.dtype).expand(sigma2.shape[0], -1)

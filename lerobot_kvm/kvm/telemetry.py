@@ -3,7 +3,6 @@
 Every tensor is detached; shapes use B (batch of environments) and S (skills begun in the pool).
 """
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -15,47 +14,44 @@ from .fusion import TAU_V, abstains, candidates, decision_weights
 
 
 class KvmStepTelemetry:
-    """One KVM assessment. Tensors a closed gate leaves at their defaults (energy NaN, v = 1, skill weight 1, not
-    invalid) and the relevances are materialised only when read, so the control loop pays for what callers use.
+    """One KVM assessment. Tensors a closed gate leaves at their defaults (energy NaN, v = 1, skill weight the
+    relevance over the candidates, not invalid) are materialised only when read, so the control loop pays for what
+    callers use.
 
     sigma2 [B]: sigma_c^2, what the gate compares; tau []: tau_adaptive (eq. 1), -inf while there are no statistics;
-    gate [B] bool: full assessment ran; alpha [B, S]: the CL core's per-skill relevance alpha_i; energy [B, S]:
+    gate [B] bool: full assessment ran; alpha [B, S]: the CL core's per-skill relevance alpha_i; candidate [B, S]
+    bool: the skills it proposes (computed from alpha when not given); energy [B, S]:
     E_theta(h_i) (or the classifier's energy-equivalent), NaN where not assessed; validity [B, S]: v_i (1 where the
     gate was closed, 0 where invalid or pruned); skill_weight [B, S]: eq. 3's decision weight w_i given to the pool
     (see kvm.fusion); invalid [B, S] bool: non-finite context, code or energy -> v_i = 0 (fail-safe); active [S]
     bool: skills not pruned.
     """
 
-    FIELDS = ("sigma2", "tau", "gate", "alpha", "energy", "validity", "skill_weight", "invalid")
-    PER_ROW = ("sigma2", "gate", "alpha", "energy", "validity", "skill_weight", "invalid")
+    PER_ROW = ("sigma2", "gate", "alpha", "candidate", "energy", "validity", "skill_weight", "invalid")
 
     def __init__(
         self,
         sigma2: Tensor,
         tau: Tensor,
         gate: Tensor | None,
-        alpha: Tensor | Callable[[], Tensor],
+        alpha: Tensor,
         active: Tensor,
         energy: Tensor | None = None,
         validity: Tensor | None = None,
         skill_weight: Tensor | None = None,
         invalid: Tensor | None = None,
+        candidate: Tensor | None = None,
     ) -> None:
         self.sigma2 = sigma2
         self.tau = tau
         self._gate = gate
-        self._alpha = alpha
+        self.alpha = alpha
+        self._candidate = candidate
         self.active = active
         self._energy = energy
         self._validity = validity
         self._skill_weight = skill_weight
         self._invalid = invalid
-
-    @property
-    def alpha(self) -> Tensor:
-        if callable(self._alpha):
-            self._alpha = self._alpha()
-        return self._alpha
 
     @property
     def gate(self) -> Tensor:
@@ -96,7 +92,9 @@ class KvmStepTelemetry:
     @property
     def candidate(self) -> Tensor:
         """[B, S] bool: proposed by the CL core (see `fusion.candidates`)."""
-        return candidates(self.alpha, self.active)
+        if self._candidate is None:
+            self._candidate = candidates(self.alpha, self.active)
+        return self._candidate
 
     @property
     def intervention(self) -> Tensor:

@@ -194,8 +194,7 @@ def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], proposed: Ten
     batch["task"] = frames["task"]
     target, pad = frames[ACTION].to(device), frames[ACTION_PAD].to(device)
     kept = (~pad).sum(-1).clamp_min(1)
-    with torch.no_grad():
-        relevance = policy.pool.skill_relevance(policy.encode_query(frames["task"])).to(target.dtype)
+    relevance = policy.pool.skill_relevance(policy.encode_query(frames["task"])).to(target.dtype)
     active = policy.kvm_active_skills()
     base = decision_weights(torch.ones_like(relevance), relevance, candidates(relevance, active))
 

@@ -100,8 +100,8 @@ class CodaKvmPolicy(PreTrainedPolicy):
         dim = self.config.action_dim
         mode = self.config.normalization_mapping.get("ACTION")
         action_stats = (stats or {}).get(ACTION)
-        features = getattr(dataset_meta, "features", None) or {}
-        names = features.get(ACTION, {}).get("names") if isinstance(features.get(ACTION), dict) else None
+        action_feature = (getattr(dataset_meta, "features", None) or {}).get(ACTION)
+        names = action_feature.get("names") if isinstance(action_feature, dict) else None
         self.register_buffer("rest_action", normalized_rest(action_stats, mode, dim))
         self.register_buffer("release_mask", release_mask(names, dim))
         self._last_action: Tensor | None = None

@@ -180,6 +180,20 @@ def test_episode_fields_without_a_validity_trace():
     assert fields["series"] is None and fields["gate_steps"] == 0 and fields["first_intervention"] is None
 
 
+def _tiny_benchmark(tiny_pool: dict, methods: list[str], passes: int = 1) -> BenchmarkConfig:
+    """A benchmark of egg_vs_stone on the tiny pool with a 2-step feedback budget."""
+    return BenchmarkConfig(
+        name="tiny",
+        sequence=str(CONFIGS / "cl_tiny.json"),
+        scenarios=["egg_vs_stone"],
+        methods=methods,
+        passes=passes,
+        feedback_steps=2,
+        finetune_batch=4,
+        dataset_root=str(tiny_pool["data"]),
+    )
+
+
 @pytest.mark.slow
 def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
     base: Path = tiny_pool["base"]
@@ -269,16 +283,7 @@ def test_tiny_benchmark_runs_every_method_from_the_pool_and_resumes(tiny_pool):
 def test_an_interrupted_run_resumes_at_its_next_pass_with_the_result_of_an_uninterrupted_one(
     tiny_pool, tmp_path, monkeypatch
 ) -> None:
-    config = BenchmarkConfig(
-        name="tiny",
-        sequence=str(CONFIGS / "cl_tiny.json"),
-        scenarios=["egg_vs_stone"],
-        methods=["coda_kvm", "act"],
-        passes=2,
-        feedback_steps=2,
-        finetune_batch=4,
-        dataset_root=str(tiny_pool["data"]),
-    )
+    config = _tiny_benchmark(tiny_pool, ["coda_kvm", "act"], passes=2)
 
     whole = Benchmark(config, tmp_path / "whole", progress=False)
     resumed = Benchmark(config, tmp_path / "resumed", progress=False)
@@ -339,16 +344,7 @@ def test_worker_processes_give_the_results_of_one_process(tiny_pool, tmp_path) -
     import torch
     from tqdm import tqdm
 
-    config = BenchmarkConfig(
-        name="tiny",
-        sequence=str(CONFIGS / "cl_tiny.json"),
-        scenarios=["egg_vs_stone"],
-        methods=["coda_kvm", "coda_prompt"],
-        passes=1,
-        feedback_steps=2,
-        finetune_batch=4,
-        dataset_root=str(tiny_pool["data"]),
-    )
+    config = _tiny_benchmark(tiny_pool, ["coda_kvm", "coda_prompt"])
     sequence = SequenceConfig.from_json(CONFIGS / "cl_tiny.json")
     checkpoints = {"kvm": ContinualRun(sequence, tiny_pool["out"]).final_checkpoint("coda_kvm")}
 

@@ -215,9 +215,8 @@ def test_forward_learns_the_kvm_offline_and_reports_metrics(make_policy, make_ba
 
 
 @pytest.mark.parametrize("gate", ["closed", "open"])
-def test_lazy_relevance_can_be_read_after_the_step(make_policy, make_batch, gate) -> None:
-    """The action needs v alone, so the relevance is computed only when telemetry asks for it: maybe after the
-    step's inference mode has ended, or after a new skill has begun."""
+def test_telemetry_can_be_read_after_the_step(make_policy, make_batch, gate) -> None:
+    """A caller may read the step's telemetry after its inference mode has ended, or after a new skill has begun."""
     policy = two_skill_policy(make_policy)
     policy.kvm.set_gate_override(gate)
     batch = make_batch(policy.config, with_action=False)
