@@ -61,6 +61,7 @@ KVM_METHODS: dict[str, dict[str, Any]] = {
     "no_smart_gate": {"smart_gate": False},
     "no_energy_model": {"risk_model": "bce"},
     "novelty_detector": {"risk_model": "novelty"},  # §4.3's generic OOD monitor: suppress everything where novel
+    "neighbour_search": {"risk_model": "neighbour"},  # the nearest-neighbour option against E_theta (eq. 2)
 }
 # LeRobot's own policies, compared as they come: each row starts from the final checkpoint of the sequence method
 # that a `BenchmarkConfig` field names (a method of the sequence training the LeRobot policy type of the same name).
