@@ -18,8 +18,8 @@ from torch import Tensor
 
 TAU_V = 0.1  # App. E: v below tau_v is a suppression ("intervention"); also eq. 8's threshold
 # Algorithm 1 line 5, P_cand: a skill is a candidate at relevance >= this share of the best skill's. With the pool's
-# relevance temperature (0.05) that is a query cosine at most 0.23 below the best skill's: one scenario's other
-# strategies (0.07-0.18 below) are candidates, other scenarios' skills (0.4 below or more) are not.
+# relevance temperature (0.05) that is a query cosine at most 0.23 below the best skill's: a scenario's safe skill
+# (0.04-0.20 below its variant's instruction) is a candidate, other scenarios' skills (0.4 below or more) are not.
 CANDIDATE_SHARE = 0.01
 
 

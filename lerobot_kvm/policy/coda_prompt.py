@@ -33,9 +33,10 @@ PROTOTYPES_PER_SKILL = 16
 # Two queries closer than this (cosine) are one prototype: the same task string, up to float noise.
 SAME_QUERY = 1.0 - 1e-4
 # Relevance alpha_i = exp((s_i - 1) / RELEVANCE_TEMPERATURE), s_i the query's best cosine with skill i's prototypes.
-# Measured with all-MiniLM-L6-v2 on the catalogue's instructions: one scenario's variant, prior-skill and safe-skill
-# instructions have cosines 0.82-0.93, instructions of different scenarios at most 0.60. At 0.05 a skill trained
-# on the very instruction has alpha 1, the same scenario's other strategies 0.03-0.3, other scenarios < 4e-4.
+# Measured with all-MiniLM-L6-v2 on the catalogue's instructions: a scenario's safe-skill instruction has cosine
+# 0.80-0.96 with its variant instruction, instructions of different scenarios at most 0.60. At 0.05 a skill trained
+# on the very instruction has alpha 1, the same scenario's safe skill 0.017-0.41, other scenarios' skills < 4e-4
+# (tests/policy/test_catalogue_relevance.py).
 RELEVANCE_TEMPERATURE = 0.05
 # eq. 3's eps: negligible against any weight a candidate carries (alpha >= exp(-1 / 0.05) ~ 2e-9 only in theory).
 FUSION_EPS = 1e-12
