@@ -51,6 +51,7 @@ from ..kvm.configuration import KvmConfig
 from ..kvm.supervisor import FEEDBACK_LR
 from ..policy.feedback import FOCUSED_LR, skill_by_name
 from .continual import ContinualRun, SequenceConfig
+from .estimate import Estimate, estimate
 from .lock import hold
 from .resume import check_settings
 
@@ -442,6 +443,13 @@ class Benchmark:
         self._envelopes: dict[tuple[int, str], Envelope] = {}
         self.pool = ContinualRun(
             self.sequence, self.out / "pool", self.launcher, str(self.sequence_path), self.pool_methods, device
+        )
+
+    def estimate(self) -> Estimate:
+        """What this invocation costs from scratch on 2 CPU cores (`estimate`), printed before it starts."""
+        cfg = self.config
+        return estimate(
+            self.sequence, self.pool_methods, cfg.methods, cfg.runs, cfg.passes, len(cfg.scenarios), self.workers
         )
 
     # ------------------------------------------------------------------ pool

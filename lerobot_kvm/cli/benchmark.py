@@ -22,7 +22,9 @@ def run(args: argparse.Namespace) -> int:
     config = replace(BenchmarkConfig.from_json(args.config), **overrides)
     out = Path(args.output_dir)
     launcher = shlex.split(args.launcher) if args.launcher else []
-    results = Benchmark(config, out, args.config, launcher, device=args.device, workers=args.workers).run()
+    benchmark = Benchmark(config, out, args.config, launcher, device=args.device, workers=args.workers)
+    print(benchmark.estimate().line(), flush=True)
+    results = benchmark.run()
     print()
     print((out / "report.md").read_text())
     print(f"results: {out / 'results.json'}  ({results['wall_time_s'] / 60:.1f} min)")
