@@ -75,16 +75,22 @@ class ScoopExpert(Expert):
 
     def resume(self, physics: Physics) -> None:
         """From where the scoop is: already in the ice cream, sink and drag with this skill's speed and push cap
-        (its second leg), counting the push from the wrist force at takeover; otherwise start with the hover."""
+        (its second leg); otherwise start with the hover."""
         self.start_from(physics)
         if robot_in_contact(physics.data, robot_geom_mask(physics.model)):
             self.leg = 1
 
     def start_from(self, physics: Physics) -> None:
-        """Take the hand's pose as the command to move on from and the wrist force now as the free-air one."""
-        self.target = physics.sensors.arm_position(physics.data)
-        self._fz = physics.model.sensor("wrist_force").adr[0] + 2
-        self._free = physics.data.sensordata[self._fz]  # wrist force with nothing touched
+        """Take the hand's pose as the command to move on from. The push is counted from the wrist force with
+        nothing touched, the hand's own weight along the sensor's axis at its present pitch: known, not read, so
+        that a skill taking over while the scoop presses into the ice cream does not count that press as free."""
+        model, data = physics.model, physics.data
+        self.target = physics.sensors.arm_position(data)
+        sensor = model.sensor("wrist_force")
+        self._fz = sensor.adr[0] + 2
+        site = sensor.objid[0]
+        weight = model.body_subtreemass[model.site_bodyid[site]] * -model.opt.gravity[2]
+        self._free = weight * data.site_xmat[site][8]
 
     def act(self, physics: Physics) -> np.ndarray:
         tub = physics.model.body("tub").pos

@@ -9,9 +9,10 @@ shaker's top): the same turn-and-shake pours out nearly everything.
 Grains are small frictionless spheres on three slides each, with per-grain damping for a
 powder's sluggish flow; the scene uses the CG solver with a pyramidal friction cone.
 
-Prior skill: tilt the shaker just past horizontal above the plate and hold it there, turn it
-far over, shake it with the wrist a fixed number of times, turn back. Safe skill: tilt slowly and
-stop as soon as pepper comes out; only if nothing comes at full tilt, give small gentle shakes.
+Prior skill: tilt the shaker just past horizontal above the plate, ease it a little further and
+hold it there, turn it far over, shake it with the wrist a fixed number of times, turn back.
+Safe skill: tilt slowly and stop as soon as pepper comes out; only if nothing comes at full tilt,
+give small gentle shakes (taking over a shaker that is already pouring, it turns back at once).
 The shift shows in the z actuator's effort, which carries the pepper's weight: during the old
 skill's shallow hold an open shaker pours out the grains above its neck's edge (their weight
 leaves the hand) while a capped one keeps them, well before turning it over empties it.
@@ -35,25 +36,29 @@ T = 0.002  # wall half thickness
 AXIS_TILT = -1.0472  # the shaker's axis leans 60 deg from vertical, top towards -x (away from the camera)
 CENTRE = (0.0, 0.0, -0.045)  # shaker centre in the hand frame
 # The top: a shoulder around a neck (half size NECK) that holds back the pepper below its edge when the shaker is
-# held just past horizontal, and in the neck the perforated insert, one central hole of half size HOLE (15 mm: the
-# 8 mm grains pass when the shaker is turned over and shaken; the former two 10 mm holes needed 35 mm dips).
+# held just past horizontal, and in the neck the perforated insert, one central hole of half size HOLE (17 mm). Turned
+# over, the grains settle against the low wall and the insert; those of the second row sit 4.3 mm off the axis, where
+# a 17 mm hole lets 3 to 5 through but a 15 mm one 1 to 4 (a single grain, too little, in 1 run of 10).
 NECK = 0.0135
-HOLE = 0.0075
+HOLE = 0.0085
 R = 0.004  # grain radius
 N_GRAINS = 36
 GRAIN_DAMPING = 0.06  # N s/m per slide: a powder's slow flow
 PLATE_R = 0.07
 MIN_ON_PLATE = 2
 MAX_OUT = 12  # more grains than this out of the shaker: the pepper is spilled
-# The old skill: tilt at PRIOR_TILT rad per control step to SHALLOW (the shaker's axis 8 deg below horizontal), hold
-# there until HOLD steps into the tilt, turn fully over, shake with the wrist (WIGGLE rad), turn back. Measured (8
-# seeds): an open shaker pours the few grains above its neck's lower edge during the hold (the wrist feels them go
-# at step 27-29) and spills only once turned over (steps 37-43); a closed one loses none until it is turned over.
-# The hand works at its home height and shakes by the wrist, not by dips of the hand: the z actuator's effort then
-# reads the pepper's weight alone (the vertical move and 35 mm dips swung it by tens of newtons, 5 % of which hid
-# a 3 g grain from the envelope).
+# The old skill: tilt at PRIOR_TILT rad per control step to SHALLOW (the shaker's axis 8 deg below horizontal), then
+# ease on by CREEP per step to DEEP (10 deg below), hold there until HOLD steps into the tilt, turn fully over, shake
+# with the wrist (WIGGLE rad), turn back. The easing on pours the grains above an open neck's lower edge even where
+# they happen to lie jammed at SHALLOW (up to 1 seed in 7 at a fixed SHALLOW), yet slowly enough that the open shaker
+# spills only 8 to 15 steps later. Measured (40 seeds): the wrist feels the grains go at step 26-33, the open shaker
+# spills at step 35-45; a closed one loses none until it is turned over. The hand works at its home height and shakes
+# by the wrist, not by dips of the hand: the z actuator's effort then reads the pepper's weight alone (the vertical
+# move and 35 mm dips swung it by tens of newtons, 5 % of which hid a 3 g grain from the envelope).
 PRIOR_TILT = 0.05
 SHALLOW = -0.66
+CREEP = 0.002
+DEEP = -0.68
 HOLD = 30
 WIGGLE = 0.3
 _SHAKER_RGB = np.array([0.80, 0.78, 0.74])
@@ -99,8 +104,10 @@ class ShakeExpert(Expert):
 
     def resume(self, physics: Physics) -> None:
         """Carry on from the wrist's present tilt, counting pepper from what is already out; the wait for the hand
-        to settle over the plate is for the first move only."""
+        to settle over the plate is for the first move only. Pepper already out means it is coming: turn back."""
         self.pitch, self.timer, self.out_before = wrist_pitch(physics), 7, self.scenario.count_out(physics.data)
+        if self.out_before > 0:
+            self.phase, self.timer = "back", 0
 
     def act(self, physics: Physics) -> np.ndarray:
         sc = self.scenario
@@ -117,7 +124,10 @@ class ShakeExpert(Expert):
                 self.phase, self.timer = "tilt", 0
         elif self.phase == "tilt":
             if not self.gentle:
-                self.pitch = max(SHALLOW, self.pitch - PRIOR_TILT)
+                if self.pitch > SHALLOW:
+                    self.pitch = max(SHALLOW, self.pitch - PRIOR_TILT)
+                else:
+                    self.pitch = max(DEEP, self.pitch - CREEP)
                 if self.timer > HOLD:
                     self.phase, self.timer = "tip", 0
             else:
