@@ -3,9 +3,11 @@
 The paper fuses P_fused = sum_i w_i P_i / (sum_i w_i + eps) over the candidate skills P_cand, with w_i = v_i * alpha_i
 (`decision_weights`; the pool applies the normalisation, `CodaPromptPool.prompt_from_alphas`): a suppressed skill's
 share goes to the remaining valid candidates. The CL core proposes the candidates (`candidates`): the skills whose
-relevance is at least `CANDIDATE_SHARE` of the best one's. With every v_i = 1 (the gate closed, or the KVM off)
-the weights are the relevances alone. When every candidate is suppressed (v_i < tau_v) there is nothing valid to
-fuse and the policy abstains (`abstains`).
+relevance is at least `CANDIDATE_SHARE` of the best one's. A suppression (v_i < tau_v, App. A) removes the skill
+from the fusion: with the pool's sharp relevance a suppressed prior skill would otherwise still outweigh the
+alternative it must hand over to. With every v_i = 1 (the gate closed, or the KVM off) the weights are the
+relevances alone. When every candidate is suppressed there is nothing valid to fuse and the policy abstains
+(`abstains`).
 
 A skill the KVM created for a knowledge gap *corrects* another skill: it is out of force where the gate is closed
 (inside the safe experience the corrected skill still holds) and, where the gate is open, valid at least as much as
@@ -18,9 +20,9 @@ from torch import Tensor
 
 TAU_V = 0.1  # App. E: v below tau_v is a suppression ("intervention"); also eq. 8's threshold
 # Algorithm 1 line 5, P_cand: a skill is a candidate at relevance >= this share of the best skill's. With the pool's
-# relevance temperature (0.05) that is a query cosine at most 0.23 below the best skill's: a scenario's safe skill
+# relevance temperature (0.01) that is a query cosine at most 0.23 below the best skill's: a scenario's safe skill
 # (0.04-0.20 below its variant's instruction) is a candidate, other scenarios' skills (0.4 below or more) are not.
-CANDIDATE_SHARE = 0.01
+CANDIDATE_SHARE = 1e-10
 
 
 def candidates(alphas: Tensor, active: Tensor) -> Tensor:
@@ -31,8 +33,11 @@ def candidates(alphas: Tensor, active: Tensor) -> Tensor:
 
 
 def decision_weights(v: Tensor, alphas: Tensor, candidate: Tensor) -> Tensor:
-    """Eq. 3's w_i = v_i * alpha_i [B, S] over the candidates (0 elsewhere)."""
-    return torch.where(candidate, v * alphas, torch.zeros_like(alphas))
+    """Eq. 3's w_i = v_i * alpha_i [B, S] over the candidates that are not suppressed (v_i >= tau_v; 0 elsewhere),
+    the relevances taken relative to the best candidate's: a common factor, which eq. 3's normalisation removes,
+    keeps the weights far above its eps however small the relevances."""
+    scale = torch.where(candidate, alphas, torch.zeros_like(alphas)).amax(-1, keepdim=True).clamp_min(1e-30)
+    return torch.where(candidate & (v >= TAU_V), v * alphas / scale, torch.zeros_like(alphas))
 
 
 def abstains(v: Tensor, weights: Tensor, candidate: Tensor) -> Tensor:

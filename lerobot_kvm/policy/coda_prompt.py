@@ -32,13 +32,17 @@ SKILL_TABLE_BYTES_PER_TASK = 1024
 PROTOTYPES_PER_SKILL = 16
 # Two queries closer than this (cosine) are one prototype: the same task string, up to float noise.
 SAME_QUERY = 1.0 - 1e-4
-# Relevance alpha_i = exp((s_i - 1) / RELEVANCE_TEMPERATURE), s_i the query's best cosine with skill i's prototypes.
-# Measured with all-MiniLM-L6-v2 on the catalogue's instructions: a scenario's safe-skill instruction has cosine
-# 0.80-0.96 with its variant instruction, instructions of different scenarios at most 0.60. At 0.05 a skill trained
-# on the very instruction has alpha 1, the same scenario's safe skill 0.017-0.41, other scenarios' skills < 4e-4
-# (tests/policy/test_catalogue_relevance.py).
-RELEVANCE_TEMPERATURE = 0.05
-# eq. 3's eps: negligible against any weight a candidate carries (alpha >= exp(-1 / 0.05) ~ 2e-9 only in theory).
+# Relevance alpha_i = exp((s_i - s_max) / RELEVANCE_TEMPERATURE), s_i the query's best cosine with skill i's
+# prototypes, s_max the closest skill's. Skills are trained alone, and a prompt mixed from two of them is no skill:
+# on the default pool, drawer's prior skill forced alone solves 5 of 5 prior episodes, mixed 1 : 0.1 with the safe
+# skill 0 of 5, 1 : 0.01 4 of 5, 1 : 0.001 5 of 5 (docs/measurements.md). Measured with all-MiniLM-L6-v2 on the
+# catalogue's instructions: a scenario's safe-skill instruction has cosine 0.80-0.96 with its variant instruction,
+# instructions of different scenarios at most 0.60. At 0.01 the skill trained on the very instruction has alpha 1,
+# the same scenario's safe skill 2e-9-0.012 (a candidate that takes over when the prior skill is suppressed),
+# other scenarios' skills < 1e-17 (tests/policy/test_catalogue_relevance.py).
+RELEVANCE_TEMPERATURE = 0.01
+# eq. 3's eps: negligible against the weights, which are scaled so that the best valid candidate's is v >= tau_v
+# (`kvm.fusion.decision_weights`).
 FUSION_EPS = 1e-12
 
 
@@ -226,9 +230,10 @@ class CodaPromptPool(nn.Module):
     def propose(self, query: Tensor) -> tuple[Tensor, Tensor]:
         """The CL core's proposal (Algorithm 1 line 5) for queries [B, Dq]: (relevance alpha [B, S], anchors [B, S,
         Dq]). Skill i's anchor is its prototype nearest to the query, the task it learned that this one is closest
-        to: the skill runs as it was trained there (`anchored_alphas`). alpha_i = exp((s_i - 1) / T), s_i that
-        prototype's cosine with the query. A skill that has seen no query yet is anchored at the query itself with
-        alpha 1: nothing says it does not apply."""
+        to: the skill runs as it was trained there (`anchored_alphas`). alpha_i = exp((s_i - s_max) / T), s_i that
+        prototype's cosine with the query, s_max the closest skill's: relative to the closest skill, so that a query
+        far from every skill still has one at alpha 1 (no underflow). A skill that has seen no query yet is anchored
+        at the query itself with cosine 1: nothing says it does not apply."""
         n = self.n_skills
         counts = self.prototype_counts[:n]  # [S, K]
         protos = self.prototypes[:n].to(query)  # [S, K, Dq]
@@ -238,7 +243,7 @@ class CodaPromptPool(nn.Module):
         best = torch.where(seen, best, torch.ones_like(best))
         anchors = protos[torch.arange(n, device=query.device).unsqueeze(0), slot]  # [B, S, Dq]
         anchors = torch.where(seen.unsqueeze(-1), anchors, query.unsqueeze(1).expand_as(anchors))
-        return torch.exp((best - 1.0) / RELEVANCE_TEMPERATURE), anchors
+        return torch.exp((best - best.amax(-1, keepdim=True)) / RELEVANCE_TEMPERATURE), anchors
 
     def skill_relevance(self, query: Tensor) -> Tensor:
         """alpha_i [B, n_skills] in (0, 1]: how close the query is to what skill i was trained on (see `propose`)."""

@@ -147,17 +147,23 @@ def test_bounded_energy_never_exceeds_e_max() -> None:
 
 
 def test_eq3_decision_weights_candidates_and_abstention_hand_values() -> None:
-    alphas = torch.tensor([[1.0, 0.2, 0.004], [0.5, 0.5, 0.001]])
+    alphas = torch.tensor([[1.0, 0.2, 4e-11], [0.5, 0.5, 1e-11]])
     active = torch.tensor([True, True, True])
-    # candidates: relevance >= 1 % of the row's best (0.004 < 0.01 in row 0; 0.001 < 0.005 in row 1)
+    # candidates: relevance >= 1e-10 of the row's best (4e-11 < 1e-10 in row 0; 1e-11 < 5e-11 in row 1)
     cand = candidates(alphas, active)
     assert cand.tolist() == [[True, True, False], [True, True, False]]
     assert candidates(alphas, torch.tensor([False, True, True])).tolist() == [[False, True, True], [False, True, False]]
-    v = torch.tensor([[0.05, 0.9, 1.0], [0.05, 0.02, 1.0]])
+    v = torch.tensor([[0.05, 0.9, 1.0], [0.5, 0.02, 1.0]])
     w = decision_weights(v, alphas, cand)
-    torch.testing.assert_close(w, torch.tensor([[0.05, 0.18, 0.0], [0.025, 0.01, 0.0]]))
-    # row 1: both candidates suppressed (v < tau_v = 0.1): nothing valid to fuse; the non-candidate does not count
-    assert abstains(v, w, cand).tolist() == [False, True]
+    # w = v * alpha / best candidate alpha; a suppressed candidate (v < tau_v = 0.1) weighs nothing
+    torch.testing.assert_close(w, torch.tensor([[0.0, 0.18, 0.0], [0.5, 0.0, 0.0]]))
+    assert abstains(v, w, cand).tolist() == [False, False]
+    # both candidates suppressed: nothing valid to fuse; the valid non-candidate does not count
+    v_low = torch.tensor([[0.05, 0.09, 1.0], [0.05, 0.02, 1.0]])
+    assert abstains(v_low, decision_weights(v_low, alphas, cand), cand).tolist() == [True, True]
+    # tiny relevances keep their ratios and a best weight of v (no underflow against eq. 3's eps)
+    tiny = decision_weights(torch.ones(1, 2), torch.tensor([[1e-20, 5e-21]]), torch.tensor([[True, True]]))
+    torch.testing.assert_close(tiny, torch.tensor([[1.0, 0.5]]))
 
 
 def test_a_correction_is_valid_at_least_where_the_skill_it_corrects_is_not_and_is_relied_on() -> None:
