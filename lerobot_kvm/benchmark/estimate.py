@@ -10,9 +10,10 @@ from dataclasses import dataclass
 
 from .continual import MethodSpec, SequenceConfig
 
-# `lerobot-train` seconds per step by policy type, at the shipped sequences' batch sizes (one torch thread beside
-# a second process; docs/benchmark.md, Cost).
-TRAIN_STEP_S = {"coda_kvm": 0.28, "act": 0.15, "diffusion": 0.43}
+# `lerobot-train` seconds per step by policy type, at the shipped sequences' batch sizes: coda_kvm from the default
+# pool of 2026-11-27 (one torch thread beside other work), ACT from the full pool's joint run (3300 steps in 17 min),
+# Diffusion Policy from its measured step (docs/benchmark.md, Cost).
+TRAIN_STEP_S = {"coda_kvm": 0.33, "act": 0.31, "diffusion": 0.43}
 EVAL_EPISODE_S = 1.0  # one `lerobot-eval` episode of a sequence's evaluation after a stage
 RECORD_EPISODE_S = 0.3  # one scripted-expert episode recorded into the sequence's dataset (when it is absent)
 # Seconds per challenge unit (one scenario in one pass: attempts, feedback, controls, probes) by method, one worker.
