@@ -2,12 +2,16 @@
 
 The ice cream is a bed of small spheres in two layers filling a tub almost to the brim; a scoop is
 fixed under the hand. Frozen or melted is hidden per-particle physics set in `reset`: frozen ice
-cream is extremely viscous (high per-particle damping), melted ice cream is runny. The prior skill
-plunges the scoop in hard and sweeps it through and up quickly: frozen ice cream absorbs the motion
-and the scoop comes up full, but melted ice cream keeps the speed the plunge gives it and splashes
-over the rim (a "spill": particles leave the tub). A slow, light scoop fills and lifts melted ice
-cream without splashing. How far the scoop sinks under the same push and how the bed drags on it
-show the difference in the wrist force and efforts (rule 3).
+cream is a stiff paste, each ball held by dry friction (MuJoCo's per-DOF `frictionloss` on its
+translation: a steady resistance however slowly it is pushed) and extremely viscous (high damping);
+melted ice cream is runny, with neither. The prior skill first presses the scoop slowly into the ice
+cream with a firm push and holds it there, then plunges it in hard and sweeps it through and up
+quickly: frozen ice cream holds the slow press up near its surface, absorbs the plunge and the scoop
+comes up full, but melted ice cream lets the press sink freely and then keeps the speed the plunge
+gives it and splashes over the rim (a "spill": particles leave the tub). A slow, light scoop fills
+and lifts melted ice cream without splashing. The held press shows the difference in the wrist
+force and efforts well before the plunge (rule 3): dry friction resists a slow press as much as a
+fast one, where damping alone would only resist the fast plunge, too late to switch skills.
 """
 
 from functools import partial
@@ -38,10 +42,18 @@ PARTICLE_MASS = 0.004
 STIFF = 'solref="0.015 2"'
 # Stiff, smooth tub walls: a splashed ball goes over the rim, never through the wall.
 WALL = 'priority="2" condim="1" solref="0.004 1" solimp="0.95 0.99 0.001"'
-HARD, LIGHT = np.inf, 6.0  # N the scoop may press down (wrist force beyond its own weight) in each skill
-FAST, SLOW = 0.05, 0.004  # m per control step of the forceful and the gentle scoop
-# variant -> damping per particle on translation (N s/m) and on rotation (N m s/rad): the ice cream's viscosity
-ICE = {"prior": (1.0, 2e-5), "shifted": (0.001, 1e-7)}
+HARD, FIRM, LIGHT = np.inf, 12.0, 6.0  # N the scoop may press down (wrist force beyond its own weight)
+FAST, PROBE, SLOW = 0.05, 0.003, 0.004  # m per control step: the plunge, the forceful scoop's press, the gentle scoop
+# variant -> per particle: damping on translation (N s/m) and on rotation (N m s/rad), dry friction on translation (N)
+ICE = {"prior": (1.0, 2e-5, 5.0), "shifted": (0.001, 1e-7, 0.0)}
+# MuJoCo's default friction constraint is so soft for a 4 g ball that it yields like a light damper and never
+# reaches its limit; a stiff, nearly hard one holds the ball until the push on it exceeds the friction.
+PASTE = 'solreffriction="0.004 1" solimpfriction="0.99 0.999 0.001"'
+# The press aims the bowl floor 2.5 mm into the bottom layer: melted ice cream lets the scoop reach it with little
+# force, frozen ice cream holds it up near the surface against the firm push.
+PRESS_Z = 2 * R - 0.0025
+SKIM_Z = 2 * R - 0.0015  # the gentle scoop rides on the bottom layer and gathers the top one
+PRESS_HOLD = 12  # control steps the forceful scoop holds its press
 
 
 def _lattice() -> np.ndarray:
@@ -61,12 +73,13 @@ SCOOP_IN = -(TUB_IN[0] - BOWL[0] - 4 * BOWL[2])  # where the scoop goes in: its 
 
 
 class ScoopExpert(Expert):
-    """Legs (name, dx of the bowl from the tub centre, bowl-floor height, pitch, m/step, rad/step, push N).
+    """Legs (name, dx of the bowl from the tub centre, bowl-floor height, pitch, m/step, rad/step, push N, hold).
 
-    `push` caps how hard the scoop may press down: once the wrist feels more, the scoop stops sinking.
+    `push` caps how hard the scoop may press down: once the wrist feels more, the scoop stops sinking. `hold`:
+    control steps the leg's goal is held once reached before the next leg.
     """
 
-    def __init__(self, legs: list[tuple[str, float, float, float, float, float, float]]) -> None:
+    def __init__(self, legs: list[tuple[str, float, float, float, float, float, float, int]]) -> None:
         self.legs = legs
         self.leg = 0
         self.wait = 0
@@ -97,7 +110,7 @@ class ScoopExpert(Expert):
         pos = physics.sensors.arm_position(physics.data)
         if self.target is None:
             self.start_from(physics)
-        _, dx, dz, pitch, speed, turn, push = self.legs[self.leg]
+        _, dx, dz, pitch, speed, turn, push, hold = self.legs[self.leg]
         # Hand position that puts the bowl floor at the goal for the wrist's present pitch.
         off = np.array([BOWL_Z * np.sin(pos[3]), 0.0, BOWL_Z * np.cos(pos[3])])
         goal = np.array([tub[0] + dx, tub[1], dz + BOWL[2]]) - off
@@ -109,7 +122,8 @@ class ScoopExpert(Expert):
         if np.allclose(self.target[:3], goal, atol=1e-3) and abs(self.target[3] - pitch) < 1e-6:
             # Reached on command; move on once the arm has caught up (or is held back, e.g. pressing down).
             self.wait += 1
-            if np.linalg.norm(pos[:3] - self.target[:3]) < 0.006 or self.wait >= 4:
+            caught_up = np.linalg.norm(pos[:3] - self.target[:3]) < 0.006 or self.wait >= 4
+            if caught_up and self.wait >= hold:
                 self.leg, self.wait = min(self.leg + 1, len(self.legs) - 1), 0
         return np.array([*self.target, -1.0], dtype=np.float32)
 
@@ -121,24 +135,25 @@ class IceCream(Scenario):
         "forceful_scoop": partial(
             ScoopExpert,
             [
-                ("hover", SCOOP_IN, BED_TOP + 0.02, 0.0, 0.015, 0.1, HARD),
-                ("press", SCOOP_IN, -0.015, 0.0, FAST, 0.1, HARD),  # aims below the floor: pushes down ~35 N
-                ("sweep", SCOOP_IN + 0.022, -0.015, 0.0, FAST, 0.1, HARD),
-                ("twist", SCOOP_IN + 0.016, 0.015, -0.6, 0.025, 0.08, HARD),  # turn the scoop up inside the ice cream
-                ("lift", SCOOP_IN + 0.016, TUB_H + 0.04, -0.6, 0.02, 0.08, HARD),
-                ("hold", SCOOP_IN + 0.016, TUB_H + 0.04, -0.6, 0.02, 0.08, HARD),
+                ("hover", SCOOP_IN, BED_TOP + 0.02, 0.0, 0.015, 0.1, HARD, 0),
+                ("press", SCOOP_IN, PRESS_Z, 0.0, PROBE, 0.1, FIRM, PRESS_HOLD),
+                ("plunge", SCOOP_IN, -0.015, 0.0, FAST, 0.1, HARD, 0),  # aims below the floor: pushes down ~35 N
+                ("sweep", SCOOP_IN + 0.022, -0.015, 0.0, FAST, 0.1, HARD, 0),
+                ("twist", SCOOP_IN + 0.016, 0.015, -0.6, 0.025, 0.08, HARD, 0),  # turn the scoop up in the ice cream
+                ("lift", SCOOP_IN + 0.016, TUB_H + 0.04, -0.6, 0.02, 0.08, HARD, 0),
+                ("hold", SCOOP_IN + 0.016, TUB_H + 0.04, -0.6, 0.02, 0.08, HARD, 0),
             ],
         ),
         "gentle_scoop": partial(
             ScoopExpert,
             [
-                ("hover", SCOOP_IN, BED_TOP + 0.02, 0.0, 0.015, 0.05, LIGHT),
-                ("dip", SCOOP_IN, 0.002, 0.0, SLOW, 0.05, LIGHT),
-                ("drag", SCOOP_IN + 0.02, 0.002, 0.0, SLOW, 0.05, LIGHT),
-                ("raise", SCOOP_IN + 0.02, BED_TOP, 0.0, SLOW, 0.04, LIGHT),  # up to the surface before turning
-                ("twist", SCOOP_IN + 0.02, BED_TOP, -0.6, SLOW, 0.04, LIGHT),
-                ("lift", SCOOP_IN + 0.02, TUB_H + 0.03, -0.6, 0.005, 0.04, LIGHT),
-                ("hold", SCOOP_IN + 0.02, TUB_H + 0.03, -0.6, 0.005, 0.04, LIGHT),
+                ("hover", SCOOP_IN, BED_TOP + 0.02, 0.0, 0.015, 0.05, LIGHT, 0),
+                ("dip", SCOOP_IN, SKIM_Z, 0.0, SLOW, 0.05, LIGHT, 0),
+                ("drag", SCOOP_IN + 0.02, SKIM_Z, 0.0, SLOW, 0.05, LIGHT, 0),
+                ("raise", SCOOP_IN + 0.02, BED_TOP, 0.0, SLOW, 0.04, LIGHT, 0),  # up to the surface before turning
+                ("twist", SCOOP_IN + 0.02, BED_TOP, -0.6, SLOW, 0.04, LIGHT, 0),
+                ("lift", SCOOP_IN + 0.02, TUB_H + 0.03, -0.6, 0.005, 0.04, LIGHT, 0),
+                ("hold", SCOOP_IN + 0.02, TUB_H + 0.03, -0.6, 0.005, 0.04, LIGHT, 0),
             ],
         ),
     }
@@ -160,7 +175,7 @@ class IceCream(Scenario):
         particles = "".join(
             f"""
     <body name="ice_{k}" pos="{p[0]} {p[1]} {p[2]}">
-      <freejoint name="ice_{k}"/>
+      <joint name="ice_{k}" type="free" {PASTE}/>
       <geom name="ice_{k}" type="sphere" size="{R}" mass="{PARTICLE_MASS}" condim="1" {STIFF}
             rgba="{cream} 1"/>
     </body>"""
@@ -196,7 +211,7 @@ class IceCream(Scenario):
         n = len(LATTICE)
         self._gids = np.array([model.geom(f"ice_{k}").id for k in range(n)])
         self._bids = np.array([model.body(f"ice_{k}").id for k in range(n)])
-        damping, spin_damping = ICE[variant]
+        damping, spin_damping, friction = ICE[variant]
         tub_xy = rng.uniform(-0.012, 0.012, 2)
         model.body_pos[model.body("tub").id] = [tub_xy[0], tub_xy[1], 0.0]
         jitter = rng.uniform(-0.02, 0.02, 3)
@@ -207,6 +222,7 @@ class IceCream(Scenario):
             dof, adr = model.jnt_dofadr[jnt], model.jnt_qposadr[jnt]
             model.dof_damping[dof : dof + 3] = damping
             model.dof_damping[dof + 3 : dof + 6] = spin_damping
+            model.dof_frictionloss[dof : dof + 3] = friction
             model.geom_rgba[self._gids[k]] = [*(CREAM_RGB + jitter), 1.0]
             data.qpos[adr : adr + 3] = start[k]
             data.qpos[adr + 3 : adr + 7] = [1, 0, 0, 0]
