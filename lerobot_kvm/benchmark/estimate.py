@@ -33,7 +33,7 @@ class Estimate:
 
     def line(self) -> str:
         pool = (
-            f"pool {self.pool_s / 60:.0f} min ({self.recorded} episodes recorded, {self.train_steps} lerobot-train "
+            f"pool {self.pool_s / 60:.0f} min ({self.recorded} episodes recorded, {self.train_steps} training "
             f"steps, {self.eval_episodes} evaluation episodes)"
         )
         units = f"challenges {self.units_s / 60:.0f} min ({self.units} units on {self.workers} workers)"
