@@ -62,7 +62,6 @@ KVM_METHODS: dict[str, dict[str, Any]] = {
     "no_smart_gate": {"smart_gate": False},
     "no_energy_model": {"risk_model": "bce"},
     "novelty_detector": {"risk_model": "novelty"},  # §4.3's generic OOD monitor: suppress everything where novel
-    "neighbour_search": {"risk_model": "neighbour"},  # the nearest-neighbour option against E_theta (eq. 2)
 }
 # LeRobot's own policies, compared as they come: each row starts from the final checkpoint of the sequence method
 # that a `BenchmarkConfig` field names (a method of the sequence training the LeRobot policy type of the same name).
@@ -354,7 +353,7 @@ def prior_skill_scores(policy: Any, demos: list[dict[str, Any]], skill: int) -> 
             continue
         c_raw = kvm.raw_context(demo[CONTEXT], policy.encode_query(demo["task"]))
         mu, _, _ = kvm.encode(c_raw)
-        energy = kvm.skill_energies(mu, c_raw, policy.n_skills)[:, skill]
+        energy = kvm.skill_energies(mu, policy.n_skills)[:, skill]
         v_all += validity(energy, GAMMA, L0).tolist()
         e_all += energy.tolist()
     return v_all, e_all

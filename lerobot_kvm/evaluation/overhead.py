@@ -137,8 +137,8 @@ def observation_inputs(policy: Any, policy_path: Path, task: str, variant: str, 
 
 def give_failures(policy: Any, policy_path: Path, scenarios: list[str], seed: int) -> list[dict]:
     """One attempt of the policy on each scenario's shifted variant, its outcome given back through the feedback
-    API, as in deployment: a failed attempt puts its contexts in the KVM's failure memory, so that the gate-open
-    step is timed with the nearest-neighbour risk model searching them (a skill without failures has none)."""
+    API, as in deployment: a failed attempt puts its contexts in the KVM's failure memory and trains E_theta, so
+    that the gate-open step is timed on a KVM that has met failures."""
     if not any(policy_path.glob("policy_preprocessor*.json")):
         raise FileNotFoundError(f"--failures runs the policy in the scenarios: {policy_path} has no processors")
     pre, post = policy_processors(policy, policy_path)

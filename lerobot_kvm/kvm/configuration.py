@@ -10,7 +10,7 @@ N_p in `attribution`, the pruning window in `metabolism`). On the command line e
 
 from dataclasses import dataclass, field
 
-RISK_MODELS = ("energy", "bce", "neighbour", "novelty")
+RISK_MODELS = ("energy", "bce", "novelty")
 
 
 @dataclass
@@ -19,10 +19,7 @@ class KvmConfig:
     enabled: bool = True  # Table 4 "w/o KVM": False gives exactly the CODA-Prompt core's actions
     smart_gate: bool = True  # Table 4 "w/o Smart Gate": False assesses at every step (eq. 1 bypassed)
     # How a (context, skill) pair is scored: "energy" (the default) is E_theta (§3.1, eq. 2); "bce" the Table 4
-    # "w/o Energy Model" MLP classifier in E_theta's place; "neighbour" E_theta, except for a skill with failures in
-    # memory, whose energy comes from the nearest neighbours of its failure and safe raw contexts (`kvm.neighbour`;
-    # kvm-check passes 15 of 18 scenarios at every seed with it, 10 with E_theta alone, docs/measurements.md, and
-    # the benchmark's `neighbour_search` row measures it); "novelty" the §4.3 out-of-distribution monitor.
+    # "w/o Energy Model" MLP classifier in E_theta's place; "novelty" the §4.3 out-of-distribution monitor.
     risk_model: str = "energy"
     force_validity: float | None = None  # diagnostics of eq. 3: every candidate's v set to this value
 

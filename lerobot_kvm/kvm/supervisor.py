@@ -35,7 +35,6 @@ from .losses import (
 )
 from .memory import DEMO, PERMANENT, ROUTINE, EpisodeLabels, SampleBuffer
 from .metabolism import METABOLISM_WINDOW, PRUNE_MIN_INTERACTIONS, PRUNE_THRESHOLD, SkillMetabolism
-from .neighbour import NEIGHBOUR_QUANTILE, NEIGHBOUR_SLOPE, NeighbourEnergy, calibrate
 from .telemetry import KvmStepTelemetry
 
 GATE_OVERRIDES = (None, "open", "closed")
@@ -76,8 +75,6 @@ class KnowledgeValidityModule(nn.Module):
         self.labels = EpisodeLabels(config.label_capacity)
         # Runtime only (never saved): a forced gate state for overhead measurement.
         self.gate_override: str | None = None
-        # cache of `neighbour_energies`
-        self._neighbours: tuple[tuple, NeighbourEnergy | None] | None = None
         self._encoder_params = tuple(self.encoder.parameters())  # loads and moves keep the Parameter objects
         joint = tuple(self.joint.parameters())  # what `scorer` snapshots: the joint feature and one network
         self._scored_params = {
@@ -136,30 +133,21 @@ class KnowledgeValidityModule(nn.Module):
 
     def risk_energy(self, h: Tensor, risk_model: str | None = None) -> Tensor:
         """Energy of features h [..., F] under the configured risk model (E_theta, or the BCE classifier's
-        energy-equivalent); the "neighbour" model starts from E_theta (`skill_energies`)."""
+        energy-equivalent)."""
         if (risk_model or self.config.risk_model) == "bce":
             return RiskClassifier.energy_equivalent(self.classifier(h), GAMMA, L0)
         return self.energy(h)
 
-    def skill_energies(self, mu: Tensor, c_raw: Tensor | None, n_skills: int, risk_model: str | None = None) -> Tensor:
-        """E [B, S] of every context (codes mu [B, L], raw contexts c_raw [B, D], which only the neighbours
-        read) with every skill begun in the pool. With the "neighbour" risk model a
-        skill with failures in memory takes its `NeighbourEnergy` instead of E_theta's."""
-        cfg = self.config
-        model = risk_model or cfg.risk_model
+    def skill_energies(self, mu: Tensor, n_skills: int, risk_model: str | None = None) -> Tensor:
+        """E [B, S] of every context (codes mu [B, L]) with every skill begun in the pool."""
+        model = risk_model or self.config.risk_model
         if torch.is_grad_enabled():  # learning: through the modules
-            energy = self.risk_energy(self.joint.all_skills(mu, torch.arange(n_skills, device=mu.device)), model)
-        elif model == "novelty":  # the generic OOD monitor of §4.3: wherever the gate opens, nothing is valid
-            energy = mu.new_full((mu.shape[0], n_skills), ENERGY_MAX)
-        elif model == "bce":
-            energy = RiskClassifier.energy_equivalent(self.scorer(n_skills, True)(mu), GAMMA, L0)
-        else:
-            energy = self.scorer(n_skills, False)(mu)
-        if model == "neighbour":
-            neighbours = self.neighbour_energies(n_skills)
-            if neighbours is not None:
-                energy[:, neighbours.skills] = neighbours.energy(c_raw.to(mu), GAMMA, L0)
-        return energy
+            return self.risk_energy(self.joint.all_skills(mu, torch.arange(n_skills, device=mu.device)), model)
+        if model == "novelty":  # the generic OOD monitor of §4.3: wherever the gate opens, nothing is valid
+            return mu.new_full((mu.shape[0], n_skills), ENERGY_MAX)
+        if model == "bce":
+            return RiskClassifier.energy_equivalent(self.scorer(n_skills, True)(mu), GAMMA, L0)
+        return self.scorer(n_skills, False)(mu)
 
     def scorer(self, n_skills: int, classifier: bool) -> SkillScorer:
         """E_theta's (or, `classifier`, the BCE classifier's) `SkillScorer` over the first n_skills skills, rebuilt
@@ -174,38 +162,10 @@ class KnowledgeValidityModule(nn.Module):
                 cached = self._scorers[classifier] = (key, SkillScorer(self.joint, net, n_skills, bound))
         return cached[1]
 
-    def neighbour_energies(self, n_skills: int) -> NeighbourEnergy | None:
-        """The nearest-neighbour energies, on the raw contexts, of the skills with failures in memory (None: no
-        such skill); rebuilt when a memory has changed since (in-place updates and loads bump the tensors' version
-        counters; a move changes the device or dtype)."""
-        stamps = (b.stamp for b in (self.safe_offline, self.safe_online, self.fail_online, self.fail_offline))
-        key = (n_skills, *_cache_key(self._encoder_params[0], stamps))  # buffers: a move replaces them
-        if self._neighbours is None or self._neighbours[0] != key:
-            self._neighbours = (key, self._build_neighbours(n_skills))
-        return self._neighbours[1]
-
-    @torch.no_grad()
-    def _build_neighbours(self, n_skills: int) -> NeighbourEnergy | None:
-        kept, safe_seen, fail_seen, calibrations = [], [], [], []
-        for skill in range(n_skills):
-            fail, _ = _of_skill((self.fail_online, self.fail_offline), skill)
-            if not len(fail):
-                continue
-            safe, tags = self.safe_samples(skill)
-            found = calibrate(safe, tags, fail, NEIGHBOUR_QUANTILE)
-            if found is not None:
-                kept.append(skill)
-                safe_seen.append(safe)
-                fail_seen.append(fail)
-                calibrations.append(found)
-        if not kept:
-            return None
-        return NeighbourEnergy(kept, safe_seen, fail_seen, calibrations, NEIGHBOUR_SLOPE)
-
     def validity_of(self, c_raw: Tensor, n_skills: int, risk_model: str | None = None) -> Tensor:
         """v [B, S] with the gate bypassed (the energy model's judgement everywhere); invalid rows -> 0."""
         mu, _, valid = self.encode(c_raw)
-        energy = self.skill_energies(mu, c_raw, n_skills, risk_model)
+        energy = self.skill_energies(mu, n_skills, risk_model)
         v = validity(energy, GAMMA, L0)
         ok = valid.unsqueeze(-1) & torch.isfinite(energy)
         return torch.where(ok, v, torch.zeros_like(v))
@@ -224,7 +184,7 @@ class KnowledgeValidityModule(nn.Module):
         per-skill relevance `alphas`), without fusion (a correction's absence where the gate is closed is a fusion
         weight, not a validity)."""
         mu, sigma2, valid = self.encode(c_raw)
-        energy = self.skill_energies(mu, c_raw, n_skills)
+        energy = self.skill_energies(mu, n_skills)
         v = validity(energy, GAMMA, L0)
         if use_gate and self.config.smart_gate:
             v = torch.where(self.gate_open(sigma2).unsqueeze(-1), v, torch.ones_like(v))
@@ -295,8 +255,7 @@ class KnowledgeValidityModule(nn.Module):
             invalid = torch.zeros_like(v, dtype=torch.bool) if valid is None else ~valid.expand_as(v)
         else:
             mu = probe.code(hidden)
-            c_raw = self.raw_context(sensed, query) if cfg.risk_model == "neighbour" else None
-            energy = self.skill_energies(mu, c_raw, active.shape[0])
+            energy = self.skill_energies(mu, active.shape[0])
             v = validity(energy, GAMMA, L0)
             invalid = ~torch.isfinite(energy) if valid is None else ~(valid & torch.isfinite(energy))
             if not everywhere:  # rows with the gate closed (their sigma^2 is finite): not assessed, E NaN, v = 1

@@ -23,9 +23,9 @@ def test_scorer_matches_the_modules_on_the_joint_feature(model: str) -> None:
     kvm = make_kvm()
     mu = 3.0 * torch.randn(9, kvm.config.latent_dim)
     with torch.enable_grad():
-        reference = kvm.skill_energies(mu, None, 4, model)
+        reference = kvm.skill_energies(mu, 4, model)
     with torch.no_grad():
-        scored = kvm.skill_energies(mu, None, 4, model)
+        scored = kvm.skill_energies(mu, 4, model)
     assert scored.shape == (9, 4)
     assert reference.abs().max() > 1.0  # not a comparison of near-zero values
     assert torch.allclose(scored, reference, rtol=1e-4, atol=1e-5)
@@ -38,7 +38,7 @@ def test_scorer_is_a_snapshot_rebuilt_after_a_weight_update() -> None:
     before = {k: v.clone() for k, v in kvm.state_dict().items()}
     mu = torch.randn(3, kvm.config.latent_dim)
     with torch.no_grad():
-        first = kvm.skill_energies(mu, None, 3, "energy")
+        first = kvm.skill_energies(mu, 3, "energy")
         assert kvm.scorer(3, False) is kvm.scorer(3, False)  # cached while nothing changes
     assert all(torch.equal(v, kvm.state_dict()[k]) for k, v in before.items())  # building it altered nothing
     optimizer = torch.optim.SGD(kvm.energy.parameters(), lr=0.5)
@@ -46,9 +46,9 @@ def test_scorer_is_a_snapshot_rebuilt_after_a_weight_update() -> None:
     kvm.energy(kvm.joint(mu, torch.zeros(3, dtype=torch.long))).sum().backward()
     optimizer.step()
     with torch.no_grad():
-        after = kvm.skill_energies(mu, None, 3, "energy")
+        after = kvm.skill_energies(mu, 3, "energy")
     with torch.enable_grad():
-        reference = kvm.skill_energies(mu, None, 3, "energy")
+        reference = kvm.skill_energies(mu, 3, "energy")
     assert not torch.allclose(after, first)
     assert torch.allclose(after, reference, rtol=1e-4, atol=1e-5)
 
