@@ -75,7 +75,6 @@ class KnowledgeValidityModule(nn.Module):
         self.labels = EpisodeLabels(config.label_capacity)
         # Runtime only (never saved): a forced gate state for overhead measurement.
         self.gate_override: str | None = None
-        self._encoder_params = tuple(self.encoder.parameters())  # loads and moves keep the Parameter objects
         joint = tuple(self.joint.parameters())  # what `scorer` snapshots: the joint feature and one network
         self._scored_params = {
             False: (*joint, *self.energy.parameters()),
