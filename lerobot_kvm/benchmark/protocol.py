@@ -50,7 +50,7 @@ from ..evaluation.validity_check import CONTEXT, shift_step
 from ..kvm.configuration import KvmConfig
 from ..kvm.supervisor import FEEDBACK_LR
 from ..policy.feedback import FOCUSED_LR, skill_by_name
-from .continual import ContinualRun, SequenceConfig
+from .continual import ContinualRun, SequenceConfig, training_minutes
 from .estimate import Estimate, estimate
 from .lock import hold
 from .resume import check_settings
@@ -784,6 +784,8 @@ class Benchmark:
             "workers": self.workers,
             "unit_episodes_and_feedback_s": sum(run["wall_time_s"] for run in all_runs),
             "unit_feedback_s": sum(run.get("feedback_time_s", 0.0) for run in all_runs),
+            # the pool's training as its stages recorded it: also when this invocation reused a built pool
+            "pool_training_min": {m: training_minutes(r) for m, r in pool_results["methods"].items()},
         }
         results = {
             "benchmark": cfg.name,

@@ -83,14 +83,17 @@ def method_table(results: dict[str, Any]) -> list[str]:
 
 
 def time_lines(breakdown: dict[str, Any] | None) -> list[str]:
-    """Where this invocation's time went: pool, the (method, run) units over their workers, overhead."""
+    """Where this invocation's time went (pool, the (method, run) units over their workers, overhead), and the
+    pool's training time as its stages recorded it (which a reused pool keeps)."""
     if not breakdown:
         return []
     m = {k: v / 60 for k, v in breakdown.items() if k.endswith("_s")}
+    recorded = [f"{name} {t:.1f}" for name, t in (breakdown.get("pool_training_min") or {}).items() if t is not None]
+    pool = f" (training as recorded: {', '.join(recorded)} min)" if recorded else ""
     return [
-        f"Time: pool {m['pool_s']:.1f} min; (method, run) units {m['units_s']:.1f} min on {breakdown['workers']} "
-        f"worker(s), {m['unit_episodes_and_feedback_s']:.1f} min of unit time of which feedback training "
-        f"{m['unit_feedback_s']:.1f}; overhead measurement {m['overhead_s']:.1f} min.",
+        f"Time: pool {m['pool_s']:.1f} min{pool}; (method, run) units {m['units_s']:.1f} min on "
+        f"{breakdown['workers']} worker(s), {m['unit_episodes_and_feedback_s']:.1f} min of unit time of which "
+        f"feedback training {m['unit_feedback_s']:.1f}; overhead measurement {m['overhead_s']:.1f} min.",
         "",
     ]
 

@@ -1,6 +1,6 @@
 """The benchmark report's tables from measured values."""
 
-from lerobot_kvm.benchmark.report import difference_table, feedback_lines, overhead_table
+from lerobot_kvm.benchmark.report import difference_table, feedback_lines, overhead_table, time_lines
 
 MEASURED = {
     "model_call_ms": {"off": 4.0, "closed": 4.3, "open": 5.0},
@@ -60,3 +60,20 @@ def test_feedback_lines_state_each_methods_budget_and_step_sizes() -> None:
     line = feedback_lines(results)[0]
     assert line.startswith("Feedback: 100 gradient steps per failed first attempt")
     assert "`coda_kvm` 3 x 100 steps (kvm_lr 0.001)" in line and "`act` 2 x 100 steps (lr 0.0001, batch 16)" in line
+
+
+def test_the_time_line_keeps_the_pool_training_a_reused_pool_recorded() -> None:
+    breakdown = {
+        "pool_s": 6.0,
+        "units_s": 600.0,
+        "overhead_s": 60.0,
+        "workers": 2,
+        "unit_episodes_and_feedback_s": 1200.0,
+        "unit_feedback_s": 900.0,
+        "pool_training_min": {"coda_kvm": 48.04, "act_joint": None},
+    }
+    line = time_lines(breakdown)[0]
+    assert line.startswith("Time: pool 0.1 min (training as recorded: coda_kvm 48.0 min); (method, run) units 10.0")
+    assert "on 2 worker(s), 20.0 min of unit time of which feedback training 15.0" in line
+    del breakdown["pool_training_min"]  # results written before the pool's training was kept
+    assert time_lines(breakdown)[0].startswith("Time: pool 0.1 min; (method, run)")
