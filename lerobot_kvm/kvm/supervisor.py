@@ -273,18 +273,18 @@ class KnowledgeValidityModule(nn.Module):
         return weights, telemetry
 
     # ----------------------------------------------------------------- learning
-    def _cross_skill(self, c_raw: Tensor, skills: Tensor, active: Tensor) -> tuple[Tensor, Tensor]:
-        """(context of skill i, another active skill j != i): negatives that are not benchmark shifts."""
-        active_idx = torch.nonzero(active).flatten()
-        n = len(active_idx)
-        if n < 2 or not len(skills):
+    def _cross_skill(self, c_raw: Tensor, skills: Tensor, partners: Tensor) -> tuple[Tensor, Tensor]:
+        """(context of skill i, a skill j drawn from `partners[i]`): negatives that are not benchmark shifts.
+
+        `partners` [S, S] bool says which skills may stand as negatives for skill i's contexts (see
+        `negatives_for`); contexts whose skill has none are left out."""
+        if not len(skills):
             return c_raw[:0], skills[:0]
-        position = torch.full((self.max_skills,), -1, dtype=torch.int64, device=skills.device)
-        position[active_idx] = torch.arange(n, device=skills.device)
-        pos = position[skills]
-        keep = pos >= 0
-        offset = torch.randint(1, n, (int(keep.sum()),), device=skills.device)
-        other = active_idx[(pos[keep] + offset) % n]
+        allowed = partners[skills]
+        keep = allowed.any(-1)
+        if not bool(keep.any()):
+            return c_raw[:0], skills[:0]
+        other = torch.multinomial(allowed[keep].float(), 1).squeeze(-1)
         return c_raw[keep], other
 
     def _synthetic(self, c_raw: Tensor, skills: Tensor) -> tuple[Tensor, Tensor]:
@@ -359,14 +359,21 @@ class KnowledgeValidityModule(nn.Module):
             partner[idx] = idx[torch.randperm(len(idx), device=skills.device)]
         return partner
 
-    def negatives_for(self, safe_c: Tensor, safe_s: Tensor, active: Tensor, recorded: Tensor) -> tuple[Tensor, Tensor]:
+    def negatives_for(
+        self, safe_c: Tensor, safe_s: Tensor, partners: Tensor, recorded: Tensor
+    ) -> tuple[Tensor, Tensor]:
         """Non-benchmark negatives derived from safe samples: cross-skill pairs and synthetic perturbations.
 
         Cross-skill pairs come only from the `recorded` [N] bool samples (dataset frames), where a context belongs
-        to the skill that was asked for. A success or a demonstration met online shows that its skill works there,
-        not that the others fail: a corrective demonstration senses what the culprit's own safe episodes sense until
-        the shift shows, and pairing it with the culprit would suppress the culprit in its prior contexts."""
-        cross_c, cross_s = self._cross_skill(safe_c[recorded], safe_s[recorded], active)
+        to the skill that was asked for, and pair it only with its skill's `partners` [S, S] bool: active skills
+        the CL core does not propose for that task (`CodaKvmPolicy.kvm_negative_partners`). A skill proposed
+        alongside, a scenario's safe alternative above all, is valid there as far as anything recorded shows, and
+        its validity there is what a suppression hands over to: paired as a negative it was judged invalid on
+        every prior-variant frame of drawer, chip_bag and egg_vs_stone (docs/measurements.md, sibling negatives).
+        A success or a demonstration met online shows that its skill works there, not that the others fail: a
+        corrective demonstration senses what the culprit's own safe episodes sense until the shift shows, and
+        pairing it with the culprit would suppress the culprit in its prior contexts."""
+        cross_c, cross_s = self._cross_skill(safe_c[recorded], safe_s[recorded], partners)
         synthetic_c, synthetic_s = self._synthetic(safe_c, safe_s)
         return torch.cat([cross_c, synthetic_c]), torch.cat([cross_s, synthetic_s])
 
@@ -376,7 +383,7 @@ class KnowledgeValidityModule(nn.Module):
         skills: Tensor,
         outcome: Tensor,
         usable: Tensor,
-        active: Tensor,
+        partners: Tensor,
         episodes: Tensor | None = None,
     ) -> tuple[Tensor, dict[str, float]]:
         """One offline learning step on dataset frames (inside `forward()`); also fills the memories.
@@ -403,7 +410,7 @@ class KnowledgeValidityModule(nn.Module):
         routine = torch.cat([torch.ones(n_new, dtype=torch.int64, device=rf.device), rf, of, hf]) & ROUTINE > 0
         recorded = torch.ones(len(safe_s), dtype=torch.bool, device=safe_s.device)
         recorded[n_new + len(rs) : n_new + len(rs) + len(os_)] = False
-        neg_c, neg_s = self.negatives_for(safe_c, safe_s, active, recorded)
+        neg_c, neg_s = self.negatives_for(safe_c, safe_s, partners, recorded)
         fc1, fs1, _ = self._replay(self.fail_offline, n if len(self.fail_offline) else 0)
         fc2, fs2, _ = self._replay(self.fail_online, n if len(self.fail_online) else 0)
         fail_c = torch.cat([c_raw[fail], fc1, fc2, neg_c])
@@ -431,7 +438,7 @@ class KnowledgeValidityModule(nn.Module):
     def train_online(
         self,
         steps: int,
-        active: Tensor,
+        partners: Tensor,
         new_safe: tuple[Tensor, Tensor],
         new_fail: tuple[Tensor, Tensor],
         batch: int | None = None,
@@ -496,7 +503,7 @@ class KnowledgeValidityModule(nn.Module):
                         c, s, _ = self._replay(buffer, half // 2)
                         fparts_c.append(c)
                         fparts_s.append(s)
-                neg_c, neg_s = self.negatives_for(safe_c, safe_s, active, torch.cat(parts_rec))
+                neg_c, neg_s = self.negatives_for(safe_c, safe_s, partners, torch.cat(parts_rec))
                 fparts_c.append(neg_c)
                 fparts_s.append(neg_s)
                 loss, metrics, e_safe = self.loss_terms(

@@ -245,6 +245,11 @@ class CodaPromptPool(nn.Module):
         anchors = torch.where(seen.unsqueeze(-1), anchors, query.unsqueeze(1).expand_as(anchors))
         return torch.exp((best - best.amax(-1, keepdim=True)) / RELEVANCE_TEMPERATURE), anchors
 
+    def training_queries(self) -> tuple[Tensor, Tensor]:
+        """(owner [Q], queries [Q, Dq]): every skill's query prototypes, the tasks it was trained on."""
+        used = self.prototype_counts[: self.n_skills] > 0
+        return torch.nonzero(used)[:, 0], self.prototypes[: self.n_skills][used]
+
     def skill_relevance(self, query: Tensor) -> Tensor:
         """alpha_i [B, n_skills] in (0, 1]: how close the query is to what skill i was trained on (see `propose`)."""
         return self.propose(query)[0]

@@ -455,7 +455,7 @@ def _learn_from_failure(
         new_safe = (torch.cat([c for c, _ in failure.positives]), torch.cat([s for _, s in failure.positives]))
     else:
         new_safe = (c_raw[:0], attempt.dominant[:0])
-    metrics = kvm.train_online(kvm_steps, attempt.active, new_safe, new_fail) if kvm_steps else {}
+    metrics = kvm.train_online(kvm_steps, policy.kvm_negative_partners(), new_safe, new_fail) if kvm_steps else {}
     report: dict[str, Any] = {"kvm_steps": kvm_steps, "skill_steps": skill_steps}
     if failure.gap is not None:
         report["new_skill"] = failure.gap | _focus(policy, failure.gap["index"], frames, skill_steps)
@@ -565,7 +565,7 @@ def _learn_from_success(
         report["kvm_steps"], report["skill_steps"] = kvm_steps, skill_steps
     elif steps:
         none = (attempt.c_raw[:0], attempt.dominant[:0])
-        metrics = kvm.train_online(steps, attempt.active, (attempt.c_raw, attempt.dominant), none)
+        metrics = kvm.train_online(steps, policy.kvm_negative_partners(), (attempt.c_raw, attempt.dominant), none)
     elif new_skill_seed:
         report["new_skill"] = {"created": False, "reason": "no gradient steps to train it with"}
     report["kvm_metrics"] = metrics
@@ -666,9 +666,11 @@ def _create_skill(
     kvm.add_safe(seed, skills, routine=False, demo=True)
     tagged = (kvm.fail_online.tag == hypothesis_id) & (kvm.fail_online.stamp >= 0)
     fails = kvm.fail_online.data[tagged]
-    active = policy.kvm_active_skills()
     metrics = kvm.train_online(
-        kvm_steps, active, (seed, skills.to(device)), (fails, torch.full((len(fails),), culprit))
+        kvm_steps,
+        policy.kvm_negative_partners(),
+        (seed, skills.to(device)),
+        (fails, torch.full((len(fails),), culprit)),
     )
     return {
         "created": True,

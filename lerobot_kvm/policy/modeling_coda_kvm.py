@@ -139,6 +139,22 @@ class CodaKvmPolicy(PreTrainedPolicy):
         """[n_skills] bool: skills not pruned by the knowledge-base metabolism."""
         return self.kvm.metabolism.active(self.n_skills)
 
+    @torch.no_grad()
+    def kvm_negative_partners(self) -> Tensor:
+        """[n_skills, n_skills] bool: skill j may stand as a cross-skill negative for skill i's recorded contexts
+        (`KnowledgeValidityModule.negatives_for`): j is active, is not i, and the CL core, every skill in force,
+        proposes it for none of the tasks i was trained on (pruning a skill makes no other one its task's)."""
+        active = self.kvm_active_skills()
+        n = self.n_skills
+        owner, queries = self.pool.training_queries()
+        proposed = torch.zeros(n, n, device=active.device)
+        if len(owner):
+            every = torch.ones_like(active)
+            near = candidates(self.pool.skill_relevance(queries), every).to(proposed)
+            proposed.index_add_(0, owner.to(active.device), near)
+        eye = torch.eye(n, dtype=torch.bool, device=active.device)
+        return active.unsqueeze(0) & (proposed == 0) & ~eye
+
     def kvm_prune_skill(self, index: int) -> None:
         """Deactivate a skill (weight 0 in the fused prompt while the KVM is enabled); recoverable."""
         self._check_skill_index(index)
@@ -307,7 +323,8 @@ class CodaKvmPolicy(PreTrainedPolicy):
         c_raw = self.kvm.raw_context(batch[self.config.context_key], query)
         episodes = batch.get("episode_index")
         episodes = episodes.reshape(-1) if isinstance(episodes, Tensor) else None
-        return self.kvm.offline_step(c_raw, skills, outcome, usable, self.kvm_active_skills(), episodes)
+        partners = self.kvm_negative_partners()
+        return self.kvm.offline_step(c_raw, skills, outcome, usable, partners, episodes)
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Any], skill_weights: Tensor | None = None) -> Tensor:

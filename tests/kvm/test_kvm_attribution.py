@@ -3,6 +3,7 @@ gap -> a new skill trained alone; metabolism -> pruning (recoverable)."""
 
 import pytest
 import torch
+import torch.nn.functional as F  # noqa: N812
 
 from lerobot_kvm.kvm.attribution import (
     CONFIRMED,
@@ -403,8 +404,10 @@ def test_online_successes_and_demonstrations_are_never_another_skills_negatives(
         return loss_terms(safe_c, safe_s, routine, fail_c, fail_s, **kwargs)
 
     kvm.loss_terms = spy
-    active = policy.kvm_active_skills()
-    kvm.train_online(5, active, (demonstrated, torch.ones(5, dtype=torch.long)), (recorded[:0], torch.zeros(0).long()))
+    partners = policy.kvm_negative_partners()
+    kvm.train_online(
+        5, partners, (demonstrated, torch.ones(5, dtype=torch.long)), (recorded[:0], torch.zeros(0).long())
+    )
     fail_c = torch.cat([c for c, _ in seen])
     fail_s = torch.cat([s for _, s in seen])
     assert len(fail_c) and bool((fail_s == 0).any()) and bool((fail_s == 1).any())  # recorded frames still pair
@@ -413,5 +416,34 @@ def test_online_successes_and_demonstrations_are_never_another_skills_negatives(
     c_raw = torch.cat([recorded, demonstrated])
     skills = torch.tensor([0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1])
     flags = torch.cat([torch.ones(6, dtype=torch.bool), torch.zeros(5, dtype=torch.bool)])
-    neg_c, neg_s = kvm.negatives_for(c_raw, skills, active, flags)
+    neg_c, neg_s = kvm.negatives_for(c_raw, skills, partners, flags)
     assert torch.equal(neg_c, recorded) and neg_s.tolist() == [1, 1, 1, 0, 0, 0]
+
+
+def test_skills_the_core_proposes_together_are_never_each_others_negatives(make_policy, make_kvm_config) -> None:
+    """A scenario's safe alternative is learned under its own instruction on the prior variant: nothing recorded
+    says it fails in the prior task's contexts, and it is what a suppression hands over to there. A recorded
+    context is a cross-skill negative only for active skills the CL core does not propose for its task."""
+    policy = make_policy(kvm=make_kvm_config(synthetic_negatives=False))
+    for name in ("gentle_grasp", "push"):
+        policy.begin_new_skill(name)
+    gen = torch.Generator().manual_seed(0)
+    stone = F.normalize(torch.randn(policy.config.query_dim, generator=gen), dim=0)
+    push = F.normalize(torch.randn(len(stone), generator=gen), dim=0)  # unrelated: cosine ~0
+    gently = F.normalize(stone + 0.1 * push, dim=0)  # cosine ~0.99 with stone: siblings
+    for skill, query in enumerate((stone, gently, push)):
+        policy.pool.observe_queries(query.unsqueeze(0), skill=skill)
+    partners = policy.kvm_negative_partners()
+    assert partners.tolist() == [[False, False, True], [False, False, True], [True, True, False]]
+
+    kvm = policy.kvm
+    c_raw = torch.randn(60, kvm.safe_offline.dim, generator=gen)
+    skills = torch.arange(3).repeat(20)
+    recorded = torch.ones(60, dtype=torch.bool)
+    _, neg_s = kvm.negatives_for(c_raw, skills, partners, recorded)
+    assert torch.equal(neg_s[skills != 2], torch.full((40,), 2))
+    assert set(neg_s[skills == 2].tolist()) == {0, 1}
+
+    policy.kvm_prune_skill(2)  # the only partner of skills 0 and 1: their contexts give no cross-skill negative
+    neg_c, neg_s = kvm.negatives_for(c_raw, skills, policy.kvm_negative_partners(), recorded)
+    assert torch.equal(neg_c, c_raw[skills == 2]) and set(neg_s.tolist()) == {0, 1}

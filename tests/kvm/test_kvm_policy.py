@@ -273,7 +273,7 @@ def test_a_feedback_update_keeps_the_safe_samples_it_judges_invalid(make_policy,
 
     kvm.loss_terms = energies_of
     fail = torch.randn(3, kvm.encoder.raw_dim)
-    update = (policy.kvm_active_skills(), (safe[:0], torch.zeros(0).long()), (fail, torch.zeros(3).long()))
+    update = (policy.kvm_negative_partners(), (safe[:0], torch.zeros(0).long()), (fail, torch.zeros(3).long()))
     kvm.train_online(1, *update)
     stored = kvm.safe_hard.data[kvm.safe_hard.filled()]
     if judged_invalid:
