@@ -7,9 +7,10 @@ proposed is taken out of the prompt in turn, and another skill is blamed instead
 policy's actions on the demonstration clearly closer to it, and clearly closer than the proposed skill's removal
 does. The largest share is often a skill learned later for the same scene, the very strategy the demonstration
 shows. The skill whose removal takes the actions furthest from the demonstration is the one that shows the safe
-strategy (`agreeing_skill`). Both read the prompt before the KVM's re-weighting, so a failure while the culprit
-was already suppressed counts against its hypothesis instead of passing the blame to whichever skills were left
-in force.
+strategy (`agreeing_skill`). The removals read the prompt before the KVM's re-weighting; the shares the culprit
+rule reads are the executed prompt's, in which a skill suppressed during the attempt keeps its share, so a failure
+while the culprit was already suppressed counts against its hypothesis instead of passing the blame to whichever
+skills were left in force.
 
 Later attempts verify the hypothesis: when the KVM suppresses skill i (v_i < tau_v) in a context similar to C and
 the attempt succeeds, the hypothesis's intervention counter is incremented (persistence). An intervention confirms
@@ -146,7 +147,7 @@ def normalised_relevance(alphas: Tensor, active: Tensor) -> Tensor:
 def culprit_skill(alphas: Tensor, last_k: int) -> int:
     """Minimal counterfactual: the skill with the largest mean share of the CODA prompt over the last K steps.
 
-    alphas: [T, S] per-skill relevance before any KVM re-weighting (zero for pruned skills).
+    alphas: [T, S] per-skill weight in the prompt (zero for pruned skills); each row is normalised to shares.
     """
     contribution = alphas.abs()[-last_k:]
     share = contribution / contribution.sum(-1, keepdim=True).clamp_min(1e-8)

@@ -5,25 +5,26 @@ after an attempt:
 
 * always: the attempt is one interaction of the knowledge-base metabolism (eqs. 7-8; pruning check) for the
   skill the CL core proposed (the culprit rule below, applied whatever the outcome).
-* failure: the culprit (minimal counterfactual: the skill that carried the largest share of the fused prompt over
-  the last K steps) and the failure context (steps outside the safe experience, sigma_c^2 > tau, plus the last K
-  steps, and the steps from which the attempt left the culprit's safe experience for good,
-  `SafeExperience.departed`) form a low-confidence
+* failure: the culprit (minimal counterfactual: the skill that carried the largest share of the executed, fused
+  prompt over the last K steps at which a skill acted; a skill the KVM suppressed from the start never acted) and
+  the failure context (steps outside the safe experience, sigma_c^2 > tau, plus the last K steps, and the steps from
+  which the attempt left the culprit's safe experience for good, `SafeExperience.departed`) form a low-confidence
   hypothesis, or add evidence to a matching one. The failure context paired with the culprit becomes provisional
   h_fail negatives; a corrective demonstration gives positives for the skill that demonstrates the safe strategy
-  (its name in `demonstration["skill"]`, else the most relevant alternative), in its own contexts and in the
-  failure context, and, where its contexts lie outside the culprit's safe experience or leave it for good
-  (`SafeExperience`), more negatives for the culprit: the demonstration ran
-  where the culprit failed, and once the shift shows, its contexts are what the culprit would meet there. Then a
-  fixed budget of gradient steps updates the KVM, replaying the safe memory so that what was safe stays safe (the
-  safe samples the update judges invalid are replayed at every step after, `kvm.feedback_hard_safe_replay`). This first
-  update is what lowers v(culprit, failure context) already on the next attempt; the hypothesis governs
-  confirmation. With a demonstration, the knowledge gap is tested at once (`kvm.gap_on_failure`): if every
-  alternative to the culprit is weak in the failure context, suppression alone would leave no strategy, so a new
-  *gated* skill that corrects the culprit (`fusion.correction_validity`) is begun and seeded from the demonstration:
-  KVM positives from the demonstrated and the failed contexts; the feedback's gradient budget is then split between
-  the KVM's update and focused steps on the new skill's parameters only (`split_budget`: the budget counts all the
-  mechanism trains). Later failures of the same hypothesis, or blamed on it in its task, refine it.
+  (its name in `demonstration["skill"]`, else the alternative the removals agree on, else the most relevant
+  alternative, each among the skills the KVM left in force), in its own contexts and in the failure context, and,
+  where its contexts lie outside the culprit's safe experience or leave it for good (`SafeExperience`), more
+  negatives for the culprit: the demonstration ran where the culprit failed, and once the shift shows, its contexts
+  are what the culprit would meet there. Then a fixed budget of gradient steps updates the KVM, replaying the safe
+  memory so that what was safe stays safe (the safe samples the update judges invalid are replayed at every step
+  after, `kvm.feedback_hard_safe_replay`). This first update is what lowers v(culprit, failure context) already on
+  the next attempt; the hypothesis governs confirmation. With a demonstration, the knowledge gap is tested at once
+  (`kvm.gap_on_failure`): if every alternative to the culprit is weak in the failure context, suppression alone
+  would leave no strategy, so a new *gated* skill that corrects the culprit (`fusion.correction_validity`) is begun
+  and seeded from the demonstration: KVM positives from the demonstrated and the failed contexts; the feedback's
+  gradient budget is then split between the KVM's update and focused steps on the new skill's parameters only
+  (`split_budget`: the budget counts all the mechanism trains). Later failures of the same hypothesis, or blamed on
+  it in its task, refine it.
 * success: safe samples for the dominant skill (routine ones, without intervention, also feed the gate window
   and E_c's reconstruction). Interventions (a candidate suppressed, v_i < tau_v) in a context similar to an open
   hypothesis of that skill count for it; an intervention confirms it when the counter exceeds N_p and the skill
@@ -304,6 +305,22 @@ def _stack_used(trace: KvmTrace, n_skills: int) -> tuple[Tensor, Tensor, Tensor]
     return v, w, inter
 
 
+def relied_on(weights: Tensor, relevance: Tensor, intervention: Tensor) -> Tensor:
+    """[T', S] each skill's share of the prompt at the steps at which some skill carried it.
+
+    The shares are the executed prompt's decision weights (`weights`; NaN where the KVM did not assess: the
+    normalised relevance), except that a skill the KVM suppressed after it had carried the prompt in this attempt
+    keeps its relevance: the suppression answered this attempt, too late to prevent its outcome. A skill suppressed
+    from the start never acted and is never blamed: blaming the most relevant skill of another scenario, suppressed
+    from step 0, left the skill that broke the egg valid (docs/measurements.md, the culprit is a skill that
+    acted). With no step carried (the KVM held from the first step), the relevance."""
+    executed = torch.where(torch.isnan(weights), relevance, weights).clamp_min(0.0)
+    carried_before = torch.cat([torch.zeros_like(executed[:1]), executed[:-1]]).cumsum(0) > 0
+    rows = torch.where(intervention & carried_before, relevance, executed)
+    acted = rows.sum(-1) > 0
+    return rows[acted] if bool(acted.any()) else relevance
+
+
 def _steps(mask: Tensor) -> list[int]:
     """The indices of a per-step mask's True steps, for the feedback's report."""
     return torch.nonzero(mask).flatten().tolist()
@@ -320,6 +337,7 @@ class _Attempt:
     intervention: Tensor  # [T, S] bool: a candidate suppressed (v < tau_v)
     dominant: Tensor  # [T] the skill with the largest share of the fused prompt
     active: Tensor  # [S] bool: skills in force (a gap skill begun by the feedback joins them)
+    in_force: Tensor  # [S] bool: candidates the KVM left in force at some step of the attempt
     task: str
     gradient_steps: int
 
@@ -363,16 +381,29 @@ def apply_feedback(
     intervention = candidate & (v_used < TAU_V)
     share = torch.where(torch.isnan(w_used), alphas, w_used)
     attempt = _Attempt(
-        c_raw, mu, sigma2 > tau, relevance, intervention, share.argmax(-1), active, task or tasks[0], steps
+        c_raw,
+        mu,
+        sigma2 > tau,
+        relevance,
+        intervention,
+        share.argmax(-1),
+        active,
+        (candidate & ~intervention).any(0),
+        task or tasks[0],
+        steps,
     )
 
-    # The skill the CL core proposed for this interaction: the culprit rule, whatever the outcome (a failure with a
-    # corrective demonstration verifies it, `_attribute`). Charging every candidate instead would retire each
-    # broadly relevant skill for failures it barely touched.
-    proposed = culprit_skill(relevance, FAIL_CONTEXT_STEPS)
+    # The skill this interaction relied on: the culprit rule, whatever the outcome (a failure with a corrective
+    # demonstration verifies it, `_attribute`). Charging every candidate instead would retire each broadly
+    # relevant skill for failures it barely touched.
+    proposed = culprit_skill(relied_on(w_used, relevance, intervention), FAIL_CONTEXT_STEPS)
     frames = _demo_frames(policy, demonstration) if demonstration is not None else None
     k = FAIL_CONTEXT_STEPS
-    attribution = _attribute(policy, frames if failed else None, candidate[-k:].any(0), proposed)
+    # Only skills the KVM left in force could have acted: one it suppressed throughout (another scenario's skill) is
+    # neither the culprit nor the skill the demonstration shows (docs/measurements.md, the culprit is a skill that
+    # acted).
+    in_force = candidate & ~intervention
+    attribution = _attribute(policy, frames if failed else None, in_force[-k:].any(0), proposed)
     proposed = attribution["culprit"]
     kvm.metabolism.record(attempt.task, torch.arange(n_skills, device=device) == proposed, failed, intervention.any(0))
     report: dict[str, Any] = {
@@ -505,7 +536,7 @@ def _learn_from_demonstration(
     elif attribution["agrees"] is not None and bool(active[attribution["agrees"]]):
         failure.demo_skill = attribution["agrees"]
     else:
-        failure.demo_skill = demonstrated_skill(d_rel, culprit, active)
+        failure.demo_skill = demonstrated_skill(d_rel, culprit, active & attempt.in_force)
     if failure.demo_skill is not None:
         # The demonstrated strategy is the one meant for the contexts the culprit failed in: they are safe for it
         # (for a new gap skill, the whole failed attempt). Otherwise those contexts would be hazardous for the

@@ -16,7 +16,7 @@ from lerobot_kvm.kvm.attribution import (
     normalised_relevance,
 )
 from lerobot_kvm.kvm.memory import PERMANENT
-from lerobot_kvm.policy.feedback import FAIL_CONTEXT_STEPS, make_demonstration
+from lerobot_kvm.policy.feedback import FAIL_CONTEXT_STEPS, make_demonstration, relied_on
 
 EGG = "pick up the egg"
 
@@ -75,6 +75,27 @@ def test_culprit_relevance_and_knowledge_gap() -> None:
     assert knowledge_gap(r[1:], culprit=1, active=active, gap_alpha=0.5)  # alternative 0 stays at 1/3
     assert not knowledge_gap(r[:1], culprit=1, active=active, gap_alpha=0.5)  # alternative 0 is strong there
     assert knowledge_gap(r, culprit=0, active=torch.tensor([True, False, False]), gap_alpha=0.5)  # no alternative
+
+
+def test_the_culprit_is_a_skill_that_acted_not_the_most_relevant_one_suppressed_from_the_start() -> None:
+    """Skill 0 is the most relevant but suppressed from step 0 (another scenario's skill); skill 1 carries the
+    executed prompt, then is suppressed at step 2 and skill 2 takes over: skill 1 is blamed, never skill 0."""
+    relevance = torch.tensor([[1.0, 0.5, 0.01]] * 4)
+    nan = float("nan")
+    weights = torch.tensor([[0.0, 0.5, 0.01], [0.0, 0.5, 0.01], [0.0, 0.0, 0.01], [0.0, 0.0, 0.01]])
+    intervention = torch.tensor([[True, False, False]] * 2 + [[True, True, False]] * 2)
+    rows = relied_on(weights, relevance, intervention)
+    torch.testing.assert_close(rows[:, 0], torch.zeros(4))  # never acted: no share
+    torch.testing.assert_close(rows[2:, 1], torch.full((2,), 0.5))  # suppressed after acting: keeps its relevance
+    assert culprit_skill(rows, last_k=FAIL_CONTEXT_STEPS) == 1
+    assert culprit_skill(relevance, last_k=FAIL_CONTEXT_STEPS) == 0  # what the relevance alone would blame
+    # the KVM held from the first step (every weight 0): the relevance; steps without assessment (NaN): relevance
+    torch.testing.assert_close(relied_on(torch.zeros(4, 3), relevance, intervention), relevance)
+    torch.testing.assert_close(relied_on(torch.full((4, 3), nan), relevance, intervention), relevance)
+    # steps at which the KVM held in the middle of an attempt are left out
+    held = weights.clone()
+    held[1] = 0.0
+    assert len(relied_on(held, relevance, torch.zeros(4, 3, dtype=torch.bool))) == 3
 
 
 def test_counterfactual_culprit_needs_a_margin_over_the_proposed_skills_removal() -> None:
@@ -282,6 +303,32 @@ def test_a_failure_with_the_culprit_suppressed_restarts_its_persistence(make_pol
     assert report["hypothesis"]["id"] == h and report["hypothesis"]["failures"] == 2
     assert report["hypothesis"]["counter"] == 0
     assert policy.kvm.hypotheses.ids() == [h]
+
+
+def test_a_skill_suppressed_from_the_start_is_neither_culprit_nor_demonstrated(
+    make_policy, make_kvm_config, make_batch, attempt
+) -> None:
+    """The most relevant skill, suppressed at every step (another scenario's skill, say), never acted: the failure
+    is blamed on the skill that carried the executed prompt, and the demonstration's positives never make the
+    suppressed one valid there (the egg broken by its own scenario's firm grasp, docs/measurements.md)."""
+    policy = make_policy(kvm=make_kvm_config(gap_on_failure=False), chunk_size=1, n_action_steps=1)
+    policy.begin_new_skill("gentle_grasp")
+    policy.begin_new_skill("slow_lift")
+    trace = attempt(policy, EGG, steps=6)
+    relevance = policy.skill_relevance([EGG])[0]
+    top = int(relevance.argmax())
+    for tele in {id(t): t for t in trace.telemetry if t is not None}.values():
+        assert int(tele.candidate[0].sum()) >= 2  # an alternative is proposed with the top skill
+        tele.validity[:, top] = 0.0
+        tele.skill_weight[:, top] = 0.0
+    steps = []
+    for t in range(5):
+        b = make_batch(policy.config, batch_size=1, task=EGG, seed=50 + t)
+        b["action"] = policy.predict_action_chunk(b, skill_weights=torch.ones(1, 3))[:, 0]
+        steps.append(b)
+    report = policy.kvm_feedback("catastrophe", trace, demonstration=make_demonstration(steps), gradient_steps=0)
+    assert report["culprit"] != top and report["hypothesis"]["skill"] != top
+    assert report["demo_skill"] is not None and report["demo_skill"] not in (top, report["culprit"])
 
 
 def test_unnecessary_interventions_do_not_confirm(make_policy, attempt, make_kvm_config) -> None:
