@@ -37,7 +37,6 @@ class KvmConfig:
 
     # ------------------------------------------------------------------ offline learning inside forward() (§3.3)
     learn_offline: bool = True  # §3.3 offline; the benchmark's baselines fine-tune the action loss alone (False)
-    synthetic_negatives: bool = True  # §3.3 h_fail: off-manifold perturbations of safe contexts as negatives
     replay_size: int = 32  # §3.3: replayed safe/fail samples per offline step (keeps earlier skills' manifold)
     # Rare safe frames (a contact impact) hold a low energy against the negatives only when the ones still judged
     # invalid are replayed every step (docs/measurements.md, hard safe memory); 0: off.

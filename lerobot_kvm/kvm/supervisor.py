@@ -289,7 +289,7 @@ class KnowledgeValidityModule(nn.Module):
 
     def _synthetic(self, c_raw: Tensor, skills: Tensor) -> tuple[Tensor, Tensor]:
         """Off-manifold perturbations of the sensed part (the query part is kept)."""
-        if not self.config.synthetic_negatives or not len(skills):
+        if not len(skills):
             return c_raw[:0], skills[:0]
         noisy = c_raw.clone()
         sensed = self.encoder.sensed_dim

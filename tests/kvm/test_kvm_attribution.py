@@ -144,6 +144,11 @@ def test_a_demonstration_verifies_the_culprit_by_removing_each_proposed_skill(
     assert report["hypothesis"]["skill"] == blamed
 
 
+def _no_synthetic(c_raw, skills):
+    """The KVM's synthetic negatives replaced by none, so that a test sees the cross-skill negatives alone."""
+    return c_raw[:0], skills[:0]
+
+
 def _force_suppression(trace, skill: int, value: float = 0.01) -> None:
     """Make the recorded assessments say the KVM suppressed `skill` at every step."""
     for tele in {id(t): t for t in trace.telemetry if t is not None}.values():
@@ -432,12 +437,14 @@ def test_a_failure_that_leaves_the_safe_experience_for_good_is_blamed_from_where
     assert blamed == {None: [], 2.0: [4, 5]}
 
 
-def test_online_successes_and_demonstrations_are_never_another_skills_negatives(make_policy, make_kvm_config) -> None:
+def test_online_successes_and_demonstrations_are_never_another_skills_negatives(make_policy, monkeypatch) -> None:
     """A demonstration shows that its skill works in its contexts, not that the culprit fails there: before the
-    shift shows, those contexts are the culprit's own safe ones. Cross-skill negatives come from recorded frames."""
-    policy = make_policy(kvm=make_kvm_config(synthetic_negatives=False))
+    shift shows, those contexts are the culprit's own safe ones. Cross-skill negatives come from recorded frames
+    (the synthetic perturbations, negatives of each sample's own skill, are left out here)."""
+    policy = make_policy()
     policy.begin_new_skill("gentle_grasp")
     kvm = policy.kvm
+    monkeypatch.setattr(kvm, "_synthetic", _no_synthetic)
     dim = kvm.safe_offline.dim
     recorded = torch.randn(6, dim)
     kvm.safe_offline.add(recorded, skill=torch.tensor([0, 0, 0, 1, 1, 1]), tag=torch.arange(6))
@@ -467,11 +474,12 @@ def test_online_successes_and_demonstrations_are_never_another_skills_negatives(
     assert torch.equal(neg_c, recorded) and neg_s.tolist() == [1, 1, 1, 0, 0, 0]
 
 
-def test_skills_the_core_proposes_together_are_never_each_others_negatives(make_policy, make_kvm_config) -> None:
+def test_skills_the_core_proposes_together_are_never_each_others_negatives(make_policy, monkeypatch) -> None:
     """A scenario's safe alternative is learned under its own instruction on the prior variant: nothing recorded
     says it fails in the prior task's contexts, and it is what a suppression hands over to there. A recorded
     context is a cross-skill negative only for active skills the CL core does not propose for its task."""
-    policy = make_policy(kvm=make_kvm_config(synthetic_negatives=False))
+    policy = make_policy()
+    monkeypatch.setattr(policy.kvm, "_synthetic", _no_synthetic)
     for name in ("gentle_grasp", "push"):
         policy.begin_new_skill(name)
     gen = torch.Generator().manual_seed(0)
