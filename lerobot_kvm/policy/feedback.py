@@ -380,6 +380,10 @@ def apply_feedback(
     candidate = candidates(alphas, active)
     intervention = candidate & (v_used < TAU_V)
     share = torch.where(torch.isnan(w_used), alphas, w_used)
+    # Only skills the KVM left in force could have acted: one it suppressed throughout (another scenario's skill) is
+    # neither the culprit nor the skill the demonstration shows (docs/measurements.md, the culprit is a skill that
+    # acted).
+    in_force = candidate & ~intervention
     attempt = _Attempt(
         c_raw,
         mu,
@@ -388,7 +392,7 @@ def apply_feedback(
         intervention,
         share.argmax(-1),
         active,
-        (candidate & ~intervention).any(0),
+        in_force.any(0),
         task or tasks[0],
         steps,
     )
@@ -399,10 +403,6 @@ def apply_feedback(
     proposed = culprit_skill(relied_on(w_used, relevance, intervention), FAIL_CONTEXT_STEPS)
     frames = _demo_frames(policy, demonstration) if demonstration is not None else None
     k = FAIL_CONTEXT_STEPS
-    # Only skills the KVM left in force could have acted: one it suppressed throughout (another scenario's skill) is
-    # neither the culprit nor the skill the demonstration shows (docs/measurements.md, the culprit is a skill that
-    # acted).
-    in_force = candidate & ~intervention
     attribution = _attribute(policy, frames if failed else None, in_force[-k:].any(0), proposed)
     proposed = attribution["culprit"]
     kvm.metabolism.record(attempt.task, torch.arange(n_skills, device=device) == proposed, failed, intervention.any(0))
