@@ -377,11 +377,11 @@ def learned_skill(policy: Any, sequence: SequenceConfig, scenario: str, skill: s
 def uncovered_scenarios(sequence: SequenceConfig, scenarios: Sequence[str]) -> list[str]:
     """Benchmark scenarios the pool does not cover: it never learned the prior skill as the challenge asks for it
     (the prior expert on the prior variant under the variant's own instruction), so the challenge tests no obsolete
-    knowledge, or it holds no safe alternative to hand control to (the safe expert on the prior variant, asked for
-    by the instruction naming the strategy: learned before any shifted frame)."""
+    knowledge, or it holds no safe alternative to hand control to (the safe expert on the prior variant asked for by
+    the instruction naming the strategy, or on the visibly different control: learned before any shifted frame)."""
     tasks = [*sequence.tasks, *sequence.pretrain_tasks]
     prior = {t.scenario for t in tasks if (t.variant, t.skill, t.instruction) == ("prior", "prior", "variant")}
-    safe = {t.scenario for t in tasks if (t.variant, t.skill) == ("prior", "safe")}
+    safe = {t.scenario for t in tasks if t.skill == "safe" and t.variant in ("prior", "control")}
     return [s for s in scenarios if s not in prior or s not in safe]
 
 

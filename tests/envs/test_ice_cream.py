@@ -71,3 +71,19 @@ def test_same_look_instruction_and_observation_keys():
     assert env.task_description == text
     assert set(melted) == {"pixels", "agent_pos", "context"}
     assert np.abs(frozen["pixels"]["front"].astype(float) - melted["pixels"]["front"].astype(float)).mean() <= 2.0
+
+
+def test_chocolate_soft_serve_takes_both_scoops_and_looks_different():
+    """The control: the prior skill still works (a benign novelty), and so does the gentle scoop, the context the
+    pools learn it from outside the shift. It stands out from frozen ice cream far more than melted ice cream does."""
+    env = KvmObsolescenceEnv(task="ice_cream")
+    for skill in ("forceful_scoop", "gentle_scoop"):
+        result = run_episode(env, "control", skill, 5)
+        assert result.success and not result.catastrophe_kind, skill
+    frames = {}
+    for variant in ("prior", "shifted", "control"):
+        obs, _ = env.reset(seed=4, options={"variant": variant})
+        frames[variant] = (obs["pixels"]["front"].astype(float), env.task_description)
+    diff = {v: np.abs(frames[v][0] - frames["prior"][0]).mean() for v in ("shifted", "control")}
+    assert diff["control"] > 3 * diff["shifted"]
+    assert "chocolate" in frames["control"][1] and "chocolate" not in frames["prior"][1]

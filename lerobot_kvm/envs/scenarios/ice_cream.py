@@ -12,6 +12,10 @@ gives it and splashes over the rim (a "spill": particles leave the tub). A slow,
 and lifts melted ice cream without splashing. The held press shows the difference in the wrist
 force and efforts well before the plunge (rule 3): dry friction resists a slow press as much as a
 fast one, where damping alone would only resist the fast plunge, too late to switch skills.
+
+The control is a tub of chocolate soft-serve (brown): thick and viscous like frozen ice cream but without its dry
+friction, so the press sinks as into melted ice cream while the damping still absorbs the plunge. Both scoops
+succeed on it, which gives the gentle scoop a context outside the shift to be learned from (DESIGN §6).
 """
 
 from functools import partial
@@ -35,7 +39,8 @@ BOWL_Z = -0.125  # scoop floor centre in the hand frame
 BOWL = (0.021, 0.016, 0.0015)  # floor half extents
 BOWL_WALL = 0.022
 TUB_RGB = np.array([0.35, 0.55, 0.75])
-CREAM_RGB = np.array([0.95, 0.90, 0.78])
+VANILLA, CHOCOLATE = np.array([0.95, 0.90, 0.78]), np.array([0.45, 0.28, 0.18])
+CREAM_RGB = {"prior": VANILLA, "shifted": VANILLA, "control": CHOCOLATE}
 MIN_SCOOPED = 2
 PARTICLE_MASS = 0.004
 # Soft, overdamped contacts: a pressed scoop sinks into the packed ice cream without storing springy energy.
@@ -45,7 +50,7 @@ WALL = 'priority="2" condim="1" solref="0.004 1" solimp="0.95 0.99 0.001"'
 HARD, FIRM, LIGHT = np.inf, 12.0, 6.0  # N the scoop may press down (wrist force beyond its own weight)
 FAST, PROBE, SLOW = 0.05, 0.003, 0.004  # m per control step: the plunge, the forceful scoop's press, the gentle scoop
 # variant -> per particle: damping on translation (N s/m) and on rotation (N m s/rad), dry friction on translation (N)
-ICE = {"prior": (1.0, 2e-5, 5.0), "shifted": (0.001, 1e-7, 0.0)}
+ICE = {"prior": (1.0, 2e-5, 5.0), "shifted": (0.001, 1e-7, 0.0), "control": (1.0, 2e-5, 0.0)}
 # MuJoCo's default friction constraint is so soft for a 4 g ball that it yields like a light damper and never
 # reaches its limit; a stiff, nearly hard one holds the ball until the push on it exceeds the friction.
 PASTE = 'solreffriction="0.004 1" solimpfriction="0.99 0.999 0.001"'
@@ -171,7 +176,7 @@ class IceCream(Scenario):
                 ("right", wx, TUB_WALL / 2, 0, -TUB_IN[1] - TUB_WALL / 2),
             )
         )
-        cream = " ".join(str(v) for v in CREAM_RGB)
+        cream = " ".join(str(v) for v in CREAM_RGB["prior"])
         particles = "".join(
             f"""
     <body name="ice_{k}" pos="{p[0]} {p[1]} {p[2]}">
@@ -223,7 +228,7 @@ class IceCream(Scenario):
             model.dof_damping[dof : dof + 3] = damping
             model.dof_damping[dof + 3 : dof + 6] = spin_damping
             model.dof_frictionloss[dof : dof + 3] = friction
-            model.geom_rgba[self._gids[k]] = [*(CREAM_RGB + jitter), 1.0]
+            model.geom_rgba[self._gids[k]] = [*(CREAM_RGB[variant] + jitter), 1.0]
             data.qpos[adr : adr + 3] = start[k]
             data.qpos[adr + 3 : adr + 7] = [1, 0, 0, 0]
         self._tub = np.array(tub_xy)
