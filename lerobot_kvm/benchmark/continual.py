@@ -124,6 +124,7 @@ class SequenceConfig:
     eval_episodes: int = 10
     eval_seed: int = 100_000  # far from the recording seeds: evaluation starts are held out
     dataset_root: str | None = None
+    action_noise: float = 0.0  # the recording's executed-action noise (`RecordingSpec.action_noise`)
 
     def __post_init__(self) -> None:
         # the recording's and evaluation's counts: refused here, not by the recorder after settings are written
@@ -162,7 +163,7 @@ class SequenceConfig:
     def recording_spec(self) -> RecordingSpec:
         items = [t.record_item(self.pretrain_episodes_per_task) for t in self.pretrain_tasks]
         items += [t.record_item(self.episodes_per_task) for t in self.tasks]
-        return RecordingSpec(name=f"kvm_cl_{self.name}", items=items, seed=self.seed)
+        return RecordingSpec(name=f"kvm_cl_{self.name}", items=items, seed=self.seed, action_noise=self.action_noise)
 
 
 def task_episodes(dataset_root: Path, tasks: Sequence[TaskSpec]) -> list[list[int]]:
@@ -391,6 +392,12 @@ class ContinualRun:
         """The dataset's episodes of each task and of each pretraining task, once the dataset is checked: a damaged
         one is named here, not deep inside lerobot-train."""
         check_dataset(self.dataset_root)
+        recorded = load_labels(self.dataset_root)["spec"].get("action_noise", 0.0)
+        if recorded != self.config.action_noise:
+            raise ValueError(
+                f"dataset {self.dataset_root} was recorded with action_noise={recorded}, the sequence asks for "
+                f"{self.config.action_noise}: record it again or pass another --dataset-root"
+            )
         episodes = task_episodes(self.dataset_root, self.config.tasks)
         return episodes, task_episodes(self.dataset_root, self.config.pretrain_tasks)
 

@@ -26,6 +26,9 @@ from .labels import LABELS_FILE
 from .ownership import process_alive
 
 OUTCOMES = ("success", "failure", "catastrophe")
+# Per action channel (x, y, z in m, pitch in rad, grip command), the executed-action noise's standard deviation
+# relative to `RecordingSpec.action_noise`: the angle and the grip span about ten times the metres of a position.
+NOISE_SCALE = np.array([1.0, 1.0, 1.0, 10.0, 10.0], dtype=np.float32)
 LABEL_KEYS = ("label.skill", "label.scenario", "label.variant", "label.outcome")
 
 
@@ -69,12 +72,18 @@ class RecordingSpec:
     fps: int = 20
     image_size: int = 96
     keep_failures: bool = False  # expert episodes that fail are dropped unless kept as negatives
+    # Standard deviation (m; see NOISE_SCALE) of Gaussian noise added to every action the expert sends to the
+    # robot, while the frame keeps the expert's own action as the label: the data shows how the expert recovers
+    # from the imprecision a learned policy has, and the KVM's safe experience covers the contexts it causes.
+    action_noise: float = 0.0
     extra: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not self.items:
             raise ValueError("a recording spec needs at least one item")
         check_counts(self, {"fps": 1, "image_size": 1})  # before the temporary dataset is created
+        if not 0.0 <= self.action_noise < 0.05:
+            raise ValueError(f"action_noise must be in [0, 0.05) m, got {self.action_noise}")
 
     @classmethod
     def from_json(cls, path: str | Path) -> "RecordingSpec":
@@ -107,21 +116,26 @@ def dataset_features(image_size: int) -> dict:
     }
 
 
-def _run_episode(env: KvmObsolescenceEnv, skill: str, seed: int) -> tuple[list[dict], str]:
+def _run_episode(env: KvmObsolescenceEnv, skill: str, seed: int, noise: float = 0.0) -> tuple[list[dict], str]:
+    """One expert episode; with `noise`, the robot executes the expert's action plus noise (its own stream, drawn
+    from the episode seed) and the frame records the expert's action."""
     obs, _ = env.reset(seed=seed)
     expert = env.scenario.expert(skill)
+    rng = np.random.default_rng([seed, 1])
     frames = []
     info: dict = {}
     for _ in range(env._max_episode_steps):
-        action = expert.act(env.physics)
+        action = expert.act(env.physics).astype(np.float32)
         frames.append(
             {
                 "observation.images.front": obs["pixels"]["front"],
                 "observation.state": obs["agent_pos"],
                 OBS_CONTEXT: obs["context"],
-                "action": action.astype(np.float32),
+                "action": action,
             }
         )
+        if noise > 0:
+            action = action + rng.normal(0.0, noise, action.shape).astype(np.float32) * NOISE_SCALE
         obs, _, terminated, truncated, info = env.step(action)
         if terminated or truncated:
             break
@@ -208,7 +222,7 @@ def record_dataset(
                 "label.variant": vocab["variant"].index(item.variant),
             }
             for _ in range(item.episodes):
-                frames, outcome = _run_episode(env, item.skill, episode_seed)
+                frames, outcome = _run_episode(env, item.skill, episode_seed, spec.action_noise)
                 episode_seed += 1
                 counts[outcome] += 1
                 bar.update()

@@ -149,3 +149,18 @@ def test_a_resumed_sequence_refuses_other_settings_of_the_sequence_or_of_a_metho
     changed = [MethodSpec("coda_kvm", steps_per_stage=100), methods[1]]
     with pytest.raises(ValueError, match=r"method coda_kvm's stages made with other settings \(steps_per_stage"):
         ContinualRun(SequenceConfig("s", [TaskSpec("book")], changed), tmp_path, only=["act"])._check_settings()
+
+
+def test_a_dataset_recorded_with_other_action_noise_is_refused(tmp_path):
+    from lerobot_kvm.benchmark.continual import ContinualRun
+    from lerobot_kvm.datasets.recorder import record_dataset
+
+    root = tmp_path / "data"
+    sequence = SequenceConfig("s", [TaskSpec("book")], [MethodSpec("coda_kvm")], dataset_root=str(root))
+    spec = sequence.recording_spec()
+    spec.items[0].episodes = 1  # a fast recording
+    record_dataset(spec, root, progress=False)
+    ContinualRun(sequence, tmp_path / "out").check_dataset()
+    noisy = SequenceConfig("s", [TaskSpec("book")], [MethodSpec("coda_kvm")], dataset_root=str(root), action_noise=2e-3)
+    with pytest.raises(ValueError, match=r"recorded with action_noise=0.0, the sequence asks for 0.002"):
+        ContinualRun(noisy, tmp_path / "out").check_dataset()

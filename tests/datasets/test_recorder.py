@@ -1,5 +1,6 @@
 import json
 
+import numpy as np
 import pytest
 import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
@@ -7,6 +8,9 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot_kvm.datasets import recorder
 from lerobot_kvm.datasets.labels import load_label_vocab, load_labels
 from lerobot_kvm.datasets.recorder import RecordingSpec, RecordItem, record_dataset
+from lerobot_kvm.envs.configuration_kvm_obsolescence import OBS_CONTEXT
+from lerobot_kvm.envs.env import KvmObsolescenceEnv
+from lerobot_kvm.envs.sensing import context_names
 
 
 def tiny_spec() -> RecordingSpec:
@@ -81,3 +85,21 @@ def test_existing_root_and_bad_specs_are_refused(tmp_path):
     path.write_text(json.dumps({"name": "x", "items": []}))
     with pytest.raises(ValueError, match="at least one item"):
         RecordingSpec.from_json(path)
+
+
+def test_action_noise_moves_the_robot_while_the_label_stays_the_experts():
+    """DART-style recording: the robot executes the expert's action plus noise (seen in the context's last
+    action), the frame keeps the expert's own action; without noise the two agree."""
+    env = KvmObsolescenceEnv("egg_vs_stone", variant="prior")
+    x = context_names().index("last_action_x")
+    gaps = {}
+    for noise in (0.0, 0.002):
+        frames, outcome = recorder._run_episode(env, "firm_grasp", 3, noise)
+        assert outcome == "success"
+        executed = np.array([f[OBS_CONTEXT][x] for f in frames[1:]])
+        label = np.array([f["action"][0] for f in frames[:-1]])
+        gaps[noise] = np.abs(executed - label)
+    assert gaps[0.0].max() < 1e-6
+    assert 0.001 < gaps[0.002].std() * np.sqrt(np.pi / (np.pi - 2)) < 0.003  # a half-normal's std -> sigma
+    with pytest.raises(ValueError, match="action_noise"):
+        RecordingSpec(name="n", items=tiny_spec().items, action_noise=-0.001)
