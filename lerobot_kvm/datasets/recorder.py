@@ -74,7 +74,8 @@ class RecordingSpec:
     keep_failures: bool = False  # expert episodes that fail are dropped unless kept as negatives
     # Standard deviation (m; see NOISE_SCALE) of Gaussian noise added to every action the expert sends to the
     # robot, while the frame keeps the expert's own action as the label: the data shows how the expert recovers
-    # from the imprecision a learned policy has, and the KVM's safe experience covers the contexts it causes.
+    # from the imprecision a learned policy has, and the KVM's safe experience covers the contexts it causes. A
+    # seed whose noisy episode fails is recorded again without noise (a pinch or a drawn line tolerates none).
     action_noise: float = 0.0
     extra: dict = field(default_factory=dict)
 
@@ -215,6 +216,7 @@ def record_dataset(
                 fps=spec.fps,
             )
             counts = dict.fromkeys(OUTCOMES, 0)
+            clean_reruns = 0
             task = item.task_string()
             labels = {
                 "label.skill": vocab["skill"].index(item.skill),
@@ -223,6 +225,9 @@ def record_dataset(
             }
             for _ in range(item.episodes):
                 frames, outcome = _run_episode(env, item.skill, episode_seed, spec.action_noise)
+                if outcome != "success" and spec.action_noise > 0:
+                    frames, outcome = _run_episode(env, item.skill, episode_seed)
+                    clean_reruns += 1
                 episode_seed += 1
                 counts[outcome] += 1
                 bar.update()
@@ -246,7 +251,7 @@ def record_dataset(
                     )
                 ds.save_episode()
             env.close()
-            summary.append({**asdict(item), "task": task, "outcomes": counts})
+            summary.append({**asdict(item), "task": task, "outcomes": counts, "clean_reruns": clean_reruns})
         bar.close()
         if ds.num_episodes == 0:
             raise RuntimeError("no episode was kept: every expert episode failed")

@@ -103,3 +103,11 @@ def test_action_noise_moves_the_robot_while_the_label_stays_the_experts():
     assert 0.001 < gaps[0.002].std() * np.sqrt(np.pi / (np.pi - 2)) < 0.003  # a half-normal's std -> sigma
     with pytest.raises(ValueError, match="action_noise"):
         RecordingSpec(name="n", items=tiny_spec().items, action_noise=-0.001)
+
+
+def test_a_seed_the_noise_breaks_is_recorded_again_without_it(tmp_path):
+    """A pinch lift spills the pizza under 2 mm of jitter (seed 0); the seed's clean expert episode is kept."""
+    spec = RecordingSpec(name="p", items=[RecordItem("pizza", "prior", "pinch_lift", 1)], action_noise=0.002)
+    summary = record_dataset(spec, tmp_path / "p", progress=False)
+    assert summary["episodes"] == 1
+    assert summary["items"][0]["outcomes"]["success"] == 1 and summary["items"][0]["clean_reruns"] == 1
