@@ -8,7 +8,7 @@ from torch import Tensor, nn
 
 from lerobot_kvm.kvm.context_encoder import ContextEncoder
 from lerobot_kvm.kvm.energy import EnergyModel, JointFeature, RiskClassifier, validity
-from lerobot_kvm.kvm.fusion import abstains, candidates, correction_validity, decision_weights
+from lerobot_kvm.kvm.fusion import abstains, candidates, correction_validity, decision_weights, hold_handovers
 from lerobot_kvm.kvm.gate import SmartGate, adaptive_threshold
 from lerobot_kvm.kvm.losses import bce_loss, contrastive_loss, energy_loss, total_loss
 from lerobot_kvm.kvm.metabolism import SkillMetabolism, fcrnc, srnc
@@ -164,6 +164,16 @@ def test_eq3_decision_weights_candidates_and_abstention_hand_values() -> None:
     # tiny relevances keep their ratios and a best weight of v (no underflow against eq. 3's eps)
     tiny = decision_weights(torch.ones(1, 2), torch.tensor([[1e-20, 5e-21]]), torch.tensor([[True, True]]))
     torch.testing.assert_close(tiny, torch.tensor([[1.0, 0.5]]))
+
+
+def test_a_held_handover_stays_suppressed_unless_holding_it_would_abstain() -> None:
+    alphas = torch.tensor([[1.0, 0.5], [1.0, 0.5], [1.0, 0.5]])
+    cand = torch.ones(3, 2, dtype=torch.bool)
+    v = torch.tensor([[0.8, 0.9], [0.8, 0.05], [0.8, 0.9]])
+    held = torch.tensor([[True, False], [True, False], [False, False]])
+    # row 0: skill 0 handed over earlier and holds; row 1: holding it would leave nothing valid, so v stands
+    expected = torch.tensor([[0.0, 0.9], [0.8, 0.05], [0.8, 0.9]])
+    torch.testing.assert_close(hold_handovers(v, held, alphas, cand), expected)
 
 
 def test_a_correction_is_valid_at_least_where_the_skill_it_corrects_is_not_and_is_relied_on() -> None:
