@@ -86,9 +86,10 @@ def correction_validity(
 ) -> Tensor:
     """v [B, S] with each correcting skill i raised to max(v_i, 1 - v_target(i)) in the rows where its target is
     necessary: the target's relevance alpha [B, S] is at least `necessity` times the largest relevance of a skill
-    that corrects nothing (the target is the knowledge the task relies on, not a bystander that every novel
-    context makes invalid). `corrections` = (mask [S] bool, target [S] index, ...) from
-    `CodaPromptPool.corrections` (None: no correcting skill, v unchanged).
+    that is not a knowledge-gap correction (the target is the knowledge the task relies on, not a bystander that
+    every novel context makes invalid). A skill that takes over counts in that scale: where it is itself the task's
+    knowledge, the skill it took over from is a bystander there. `corrections` = (mask [S] bool, target [S]
+    index, gated [S] bool) from `CodaPromptPool.corrections` (None: no correcting skill, v unchanged).
 
     Two refinements keep corrections where they were made for. When one skill has several corrections (each
     made in another context), only the one with the highest own validity in a row inherits there (ties go to
@@ -97,8 +98,9 @@ def correction_validity(
     if corrections is None:
         return v
     mask, target = corrections[0], corrections[1]
+    gated = corrections[2] if len(corrections) > 2 else mask
     mass = alphas.abs()
-    necessary = mass[:, target] >= necessity * plain_scale(mass, mask).unsqueeze(-1)
+    necessary = mass[:, target] >= necessity * plain_scale(mass, gated).unsqueeze(-1)
     if active is not None:
         necessary &= active[target].unsqueeze(0)
     inherited = torch.where(necessary & _chosen_sibling(v, mask, target), 1 - v[:, target], torch.zeros_like(v))

@@ -693,7 +693,7 @@ def _gap_skill(
     if made < 0 and skills[culprit].gated and len(relevance):
         # a failing correction is refined where the task relies on the skill it corrects; elsewhere it is the
         # attribution's to judge (never a correction of a correction)
-        scale = plain_scale(relevance, policy.pool.corrections()[0]).mean()
+        scale = plain_scale(relevance, policy.pool.corrections().gated).mean()
         if relevance[:, skills[culprit].corrects].mean() >= policy.config.kvm.tau_high * scale:
             made = culprit
     if made >= 0:
