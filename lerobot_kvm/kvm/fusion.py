@@ -87,8 +87,9 @@ def correction_validity(
     """v [B, S] with each correcting skill i raised to max(v_i, 1 - v_target(i)) in the rows where its target is
     necessary: the target's relevance alpha [B, S] is at least `necessity` times the largest relevance of a skill
     that is not a knowledge-gap correction (the target is the knowledge the task relies on, not a bystander that
-    every novel context makes invalid). A skill that takes over counts in that scale: where it is itself the task's
-    knowledge, the skill it took over from is a bystander there. `corrections` = (mask [S] bool, target [S]
+    every novel context makes invalid). A skill that takes over counts in that scale, and inherits only where the
+    skill it took over from is at least as relevant as itself: where it is itself the task's knowledge (another
+    task it was learned for), the skill it took over from is a bystander. `corrections` = (mask [S] bool, target [S]
     index, gated [S] bool) from `CodaPromptPool.corrections` (None: no correcting skill, v unchanged).
 
     Two refinements keep corrections where they were made for. When one skill has several corrections (each
@@ -101,6 +102,7 @@ def correction_validity(
     gated = corrections[2] if len(corrections) > 2 else mask
     mass = alphas.abs()
     necessary = mass[:, target] >= necessity * plain_scale(mass, gated).unsqueeze(-1)
+    necessary &= gated.unsqueeze(0) | (mass[:, target] >= mass)  # a takeover: where its target outranks it
     if active is not None:
         necessary &= active[target].unsqueeze(0)
     inherited = torch.where(necessary & _chosen_sibling(v, mask, target), 1 - v[:, target], torch.zeros_like(v))

@@ -201,6 +201,9 @@ def test_a_skill_that_takes_over_inherits_only_where_the_skill_it_took_over_from
     alphas = torch.tensor([[1.0, 0.1], [0.5, 1.0]])
     expected = torch.tensor([[0.02, 0.98], [0.02, 0.01]])
     torch.testing.assert_close(correction_validity(v, takeover, alphas, necessity=0.8), expected)
+    # nor where its target, though necessary (0.9 >= 0.8 of 1.0), ranks below it
+    close = torch.tensor([[1.0, 0.1], [0.9, 1.0]])
+    torch.testing.assert_close(correction_validity(v, takeover, close, necessity=0.8), expected)
     gap = Corrections(takeover.mask, takeover.target, takeover.mask)  # a gap skill: left out of the scale
     torch.testing.assert_close(correction_validity(v, gap, alphas, necessity=0.8), torch.tensor([[0.02, 0.98]] * 2))
 
