@@ -270,7 +270,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self._kvm_trace = KvmTrace()
         self._kvm_telemetry = None
         self._queued_interventions: Tensor | None = None
-        self._held: Tensor | None = None  # [B, S] bool: suppressions that handed over, held while the gate is open
         self._last_action = None
 
     def forward(
@@ -348,7 +347,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
         if self._action_queue and gate_open and self._kvm_active(skill_weights):
             pending = self._plan(batch, skill_weights)
             self._kvm_telemetry = pending[2]
-            self._hold(pending[2])
             if self._queued_interventions is not None and torch.equal(
                 pending[2].intervention, self._queued_interventions
             ):
@@ -363,22 +361,10 @@ class CodaKvmPolicy(PreTrainedPolicy):
             self._action_queue.extend(chunk[:, : self.config.n_action_steps].transpose(0, 1))
             self._kvm_telemetry = telemetry
             self._queued_interventions = None if telemetry is None else telemetry.intervention
-            if pending is None:
-                self._hold(telemetry)
         action = self._action_queue.popleft()
         self._last_action = action
         self._record_step(batch, action)
         return action
-
-    def _hold(self, telemetry: KvmStepTelemetry | None) -> None:
-        """Hold this step's handovers (suppressions with a candidate left in force) while the gate stays open."""
-        if telemetry is None or telemetry.gate is None:
-            self._held = None
-            return
-        gate = telemetry.gate.unsqueeze(-1)
-        handed = telemetry.intervention & ~telemetry.abstained.unsqueeze(-1)
-        held = self._held if self._held is not None and self._held.shape == handed.shape else False
-        self._held = (handed | held) & gate
 
     def _to_eval(self) -> None:
         """Inference runs in eval mode; `eval()` walks every submodule, which costs more than the KVM's gate-closed
@@ -463,7 +449,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
             self.kvm.metabolism.active(n),
             self.kvm.metabolism.all_active(n),
             self.pool.corrections(),
-            self._held if self._held is not None and self._held.shape == relevance.shape else None,
         )
         return alphas, weights, telemetry
 
