@@ -19,7 +19,7 @@ from .configuration import KvmConfig
 from .context_encoder import ContextEncoder
 from .energy import ENERGY_MAX, GAMMA, L0, EnergyModel, JointFeature, RiskClassifier, SkillScorer, validity
 from .experience import SafeExperience
-from .fusion import candidates, correction_validity, decision_weights
+from .fusion import Corrections, candidates, correction_validity, decision_weights, hold_handovers
 from .gate import SmartGate
 from .losses import (
     BCE_WEIGHT,
@@ -169,30 +169,6 @@ class KnowledgeValidityModule(nn.Module):
         ok = valid.unsqueeze(-1) & torch.isfinite(energy)
         return torch.where(ok, v, torch.zeros_like(v))
 
-    @torch.no_grad()
-    def score(
-        self,
-        c_raw: Tensor,
-        n_skills: int,
-        active: Tensor,
-        use_gate: bool = True,
-        corrections: tuple[Tensor, Tensor] | None = None,
-        alphas: Tensor | None = None,
-    ) -> Tensor:
-        """v [N, S] as `assess` would give it for these contexts (gate, fail-safe, pruning; corrections given the
-        per-skill relevance `alphas`), without fusion (a correction's absence where the gate is closed is a fusion
-        weight, not a validity)."""
-        mu, sigma2, valid = self.encode(c_raw)
-        energy = self.skill_energies(mu, n_skills)
-        v = validity(energy, GAMMA, L0)
-        if use_gate and self.config.smart_gate:
-            v = torch.where(self.gate_open(sigma2).unsqueeze(-1), v, torch.ones_like(v))
-        ok = valid.unsqueeze(-1) & torch.isfinite(energy) & active.unsqueeze(0)
-        v = torch.where(ok, v, torch.zeros_like(v))
-        if corrections is None or alphas is None:
-            return v
-        return torch.where(ok, correction_validity(v, corrections, alphas, self.config.tau_high, active), 0.0)
-
     def threshold(self) -> Tensor:
         return self.gate.threshold(self.encoder, self.gate_memory)
 
@@ -208,14 +184,16 @@ class KnowledgeValidityModule(nn.Module):
         alphas: Tensor,
         active: Tensor,
         all_active: bool | None = None,
-        corrections: tuple[Tensor, Tensor] | None = None,
+        corrections: Corrections | None = None,
+        held: Tensor | None = None,
     ) -> tuple[Tensor, KvmStepTelemetry]:
         """Eq. 3's decision weights w [B, S] for the pool and the step's telemetry (Algorithm 1, lines 5-20).
 
         sensed [B, C] normalized context, query [B, D_q], alphas [B, S] the CL core's per-skill relevance, active
-        [S] bool (not pruned), corrections: knowledge-gap skills (`CodaPromptPool.corrections`). Where the gate is
-        closed every v is 1 and w is the relevance over the candidates; the gate-closed path costs E_c and the gate
-        test only. `telemetry.abstained` marks rows where every candidate is suppressed.
+        [S] bool (not pruned), corrections: skills that inherit validity (`CodaPromptPool.corrections`), held
+        [B, S] bool: suppressions that handed the prompt over earlier in the attempt (`fusion.hold_handovers`).
+        Where the gate is closed every v is 1 and w is the relevance over the candidates; the gate-closed path
+        costs E_c and the gate test only. `telemetry.abstained` marks rows where every candidate is suppressed.
         """
         cfg = self.config
         self.gate.ensure_fresh(self.encoder, self.gate_memory)
@@ -243,7 +221,7 @@ class KnowledgeValidityModule(nn.Module):
             v = active.to(sigma2.dtype).expand(sigma2.shape[0], -1)
             weights = decision_weights(v, alphas, candidate)
             if corrections is not None:
-                weights = weights.masked_fill(corrections[0], 0.0)
+                weights = weights.masked_fill(corrections.gated, 0.0)
             return weights, KvmStepTelemetry(validity=v, skill_weight=weights, **common)
         if gate is None:
             gate = common["gate"] = torch.zeros_like(sigma2, dtype=torch.bool)
@@ -266,9 +244,11 @@ class KnowledgeValidityModule(nn.Module):
         v = v.masked_fill(off, 0.0)
         if corrections is not None:
             v = torch.where(off, 0.0, correction_validity(v, corrections, alphas, cfg.tau_high, active))
+        if held is not None:
+            v = hold_handovers(v, held & gate.unsqueeze(-1), alphas, candidate)
         weights = decision_weights(v, alphas, candidate)
         if corrections is not None:
-            weights = weights.masked_fill(corrections[0].unsqueeze(0) & ~gate.unsqueeze(-1), 0.0)
+            weights = weights.masked_fill(corrections.gated.unsqueeze(0) & ~gate.unsqueeze(-1), 0.0)
         telemetry = KvmStepTelemetry(energy=energy, validity=v, skill_weight=weights, invalid=invalid, **common)
         return weights, telemetry
 
