@@ -667,8 +667,6 @@ class Benchmark:
                 "skill_steps": report["skill_steps"],
                 "culprit": report.get("culprit"),
                 "attribution": report.get("attribution"),
-                "demo_skill": report.get("demo_skill"),
-                "takes_over": report.get("takes_over"),
                 "hypothesis": report.get("hypothesis"),
                 "new_skill": report.get("new_skill"),
                 "confirmed": report.get("confirmed"),

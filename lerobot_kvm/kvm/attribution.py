@@ -19,9 +19,7 @@ the hypothesis when the counter exceeds N_p *and* the suppressed skill was a hig
 persistence (the counter restarts from 0).
 
 Confirmed hypotheses make their failure contexts permanent h_fail negatives; if every alternative skill stayed
-weak (normalised alpha < gap_alpha) a knowledge gap is diagnosed and a new skill is created. A corrective
-demonstration that a skill of the pool performs by itself is no gap, whatever that skill's relevance
-(`explaining_skill`): the demonstration shows where the valid knowledge is.
+weak (normalised alpha < gap_alpha) a knowledge gap is diagnosed and a new skill is created.
 
 The table is a set of fixed-capacity persistent buffers (one row per hypothesis).
 """
@@ -178,20 +176,6 @@ def agreeing_skill(error: float, without: Tensor, candidates: Tensor, culprit: i
     loss = (without - error).masked_fill(~others, float("-inf"))
     best = int(loss.argmax())
     return best if bool(others[best]) and float(loss[best]) > 0 else None
-
-
-def explaining_skill(alone: Tensor, culprit: int, eligible: Tensor, ratio: float) -> int | None:
-    """The alternative that performs the corrective demonstration by itself: among the `eligible` [S] bool skills
-    other than the culprit, the one whose prompt used alone reproduces the demonstration's actions best, if its
-    error is at most `ratio` times the culprit's alone. None: no skill of the pool is the demonstrated strategy.
-
-    alone: [S] each skill's action error on the demonstration with its prompt alone (eq. 3 with one v = 1)."""
-    others = eligible.clone()
-    others[culprit] = False
-    if not bool(others.any()):
-        return None
-    best = int(alone.masked_fill(~others, float("inf")).argmin())
-    return best if float(alone[best]) <= ratio * float(alone[culprit]) else None
 
 
 def knowledge_gap(relevance: Tensor, culprit: int, active: Tensor, gap_alpha: float) -> bool:

@@ -7,17 +7,13 @@ relevance is at least `CANDIDATE_SHARE` of the best one's. A suppression (v_i < 
 from the fusion: with the pool's sharp relevance a suppressed prior skill would otherwise still outweigh the
 alternative it must hand over to. With every v_i = 1 (the gate closed, or the KVM off) the weights are the
 relevances alone. When every candidate is suppressed there is nothing valid to fuse and the policy abstains
-(`abstains`). A suppression that handed the prompt over holds while the gate stays open (`hold_handovers`).
+(`abstains`).
 
 A skill the KVM created for a knowledge gap *corrects* another skill: it is out of force where the gate is closed
 (inside the safe experience the corrected skill still holds) and, where the gate is open, valid at least as much as
 the skill it corrects is not (`correction_validity`): the correction takes over exactly where the obsolete
-knowledge is suppressed, however narrow the few seed contexts it was learned from. A skill of the pool that a
-corrective demonstration showed performs the safe strategy *takes over* from the failed skill the same way, and
-stays in force where the gate is closed (`Corrections`).
+knowledge is suppressed, however narrow the few seed contexts it was learned from.
 """
-
-from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -44,33 +40,9 @@ def decision_weights(v: Tensor, alphas: Tensor, candidate: Tensor) -> Tensor:
     return torch.where(candidate & (v >= TAU_V), v * alphas / scale, torch.zeros_like(alphas))
 
 
-class Corrections(NamedTuple):
-    """Which skills inherit validity from another (`correction_validity`), and which are out of force where the
-    gate is closed. `mask` [S] bool: skill i inherits from `target[i]` ([S] index, itself otherwise); `gated` [S]
-    bool: i is a knowledge-gap skill, a correction for contexts outside the safe experience only. A skill of the
-    pool that a corrective demonstration showed performs the safe strategy where its target failed inherits too,
-    but stays in force where the gate is closed: it has routine of its own. `applies` [B, S] bool (None:
-    everywhere): the rows where i may inherit, a takeover only under the instruction it was demonstrated on."""
-
-    mask: Tensor
-    target: Tensor
-    gated: Tensor
-    applies: Tensor | None = None
-
-
 def abstains(v: Tensor, weights: Tensor, candidate: Tensor) -> Tensor:
     """[B] bool: no candidate in force is valid (every one suppressed, v_i < tau_v, or weighted 0): abstain."""
     return ~(candidate & (v >= TAU_V) & (weights > 0)).any(-1)
-
-
-def hold_handovers(v: Tensor, held: Tensor, alphas: Tensor, candidate: Tensor) -> Tensor:
-    """v [B, S] with the `held` [B, S] skills kept suppressed (v = 0) in the rows where another candidate stays in
-    force: a handover, once made, holds while the gate stays open, instead of handing back whenever the obsolete
-    skill's validity flickers above tau_v for a step. A row where holding would leave no candidate keeps its v:
-    a hold never makes an abstention."""
-    kept = v.masked_fill(held, 0.0)
-    hands_over = (decision_weights(kept, alphas, candidate) > 0).any(-1, keepdim=True)
-    return torch.where(hands_over, kept, v)
 
 
 def plain_scale(alphas: Tensor, correcting: Tensor) -> Tensor:
@@ -81,19 +53,16 @@ def plain_scale(alphas: Tensor, correcting: Tensor) -> Tensor:
 
 def correction_validity(
     v: Tensor,
-    corrections: Corrections | tuple[Tensor, Tensor] | None,
+    corrections: tuple[Tensor, Tensor] | None,
     alphas: Tensor,
     necessity: float = 0.8,
     active: Tensor | None = None,
 ) -> Tensor:
     """v [B, S] with each correcting skill i raised to max(v_i, 1 - v_target(i)) in the rows where its target is
     necessary: the target's relevance alpha [B, S] is at least `necessity` times the largest relevance of a skill
-    that is not a knowledge-gap correction (the target is the knowledge the task relies on, not a bystander that
-    every novel context makes invalid). A skill that takes over counts in that scale, and inherits only where the
-    skill it took over from is at least as relevant as itself: where it is itself the task's knowledge (another
-    task it was learned for), the skill it took over from is a bystander; and only in the rows its `applies` allows.
-    `corrections`: `Corrections` from `CodaPromptPool.corrections`, or (mask, target) (None: no correcting skill, v
-    unchanged).
+    that corrects nothing (the target is the knowledge the task relies on, not a bystander that every novel
+    context makes invalid). `corrections` = (mask [S] bool, target [S] index) from
+    `CodaPromptPool.corrections` (None: no correcting skill, v unchanged).
 
     Two refinements keep corrections where they were made for. When one skill has several corrections (each
     made in another context), only the one with the highest own validity in a row inherits there (ties go to
@@ -101,13 +70,9 @@ def correction_validity(
     nothing on: its v = 0 is no judgement of the context."""
     if corrections is None:
         return v
-    mask, target = corrections[0], corrections[1]
-    gated = corrections[2] if len(corrections) > 2 else mask
+    mask, target = corrections
     mass = alphas.abs()
-    necessary = mass[:, target] >= necessity * plain_scale(mass, gated).unsqueeze(-1)
-    necessary &= gated.unsqueeze(0) | (mass[:, target] >= mass)  # a takeover: where its target outranks it
-    if isinstance(corrections, Corrections) and corrections.applies is not None:
-        necessary &= corrections.applies
+    necessary = mass[:, target] >= necessity * plain_scale(mass, mask).unsqueeze(-1)
     if active is not None:
         necessary &= active[target].unsqueeze(0)
     inherited = torch.where(necessary & _chosen_sibling(v, mask, target), 1 - v[:, target], torch.zeros_like(v))

@@ -19,7 +19,7 @@ from .configuration import KvmConfig
 from .context_encoder import ContextEncoder
 from .energy import ENERGY_MAX, GAMMA, L0, EnergyModel, JointFeature, RiskClassifier, SkillScorer, validity
 from .experience import SafeExperience
-from .fusion import Corrections, candidates, correction_validity, decision_weights, hold_handovers
+from .fusion import candidates, correction_validity, decision_weights
 from .gate import SmartGate
 from .losses import (
     BCE_WEIGHT,
@@ -184,16 +184,14 @@ class KnowledgeValidityModule(nn.Module):
         alphas: Tensor,
         active: Tensor,
         all_active: bool | None = None,
-        corrections: Corrections | None = None,
-        held: Tensor | None = None,
+        corrections: tuple[Tensor, Tensor] | None = None,
     ) -> tuple[Tensor, KvmStepTelemetry]:
         """Eq. 3's decision weights w [B, S] for the pool and the step's telemetry (Algorithm 1, lines 5-20).
 
         sensed [B, C] normalized context, query [B, D_q], alphas [B, S] the CL core's per-skill relevance, active
-        [S] bool (not pruned), corrections: skills that inherit validity (`CodaPromptPool.corrections`), held
-        [B, S] bool: suppressions that handed the prompt over earlier in the attempt (`fusion.hold_handovers`).
-        Where the gate is closed every v is 1 and w is the relevance over the candidates; the gate-closed path
-        costs E_c and the gate test only. `telemetry.abstained` marks rows where every candidate is suppressed.
+        [S] bool (not pruned), corrections: knowledge-gap skills (`CodaPromptPool.corrections`). Where the gate is
+        closed every v is 1 and w is the relevance over the candidates; the gate-closed path costs E_c and the gate
+        test only. `telemetry.abstained` marks rows where every candidate is suppressed.
         """
         cfg = self.config
         self.gate.ensure_fresh(self.encoder, self.gate_memory)
@@ -221,7 +219,7 @@ class KnowledgeValidityModule(nn.Module):
             v = active.to(sigma2.dtype).expand(sigma2.shape[0], -1)
             weights = decision_weights(v, alphas, candidate)
             if corrections is not None:
-                weights = weights.masked_fill(corrections.gated, 0.0)
+                weights = weights.masked_fill(corrections[0], 0.0)
             return weights, KvmStepTelemetry(validity=v, skill_weight=weights, **common)
         if gate is None:
             gate = common["gate"] = torch.zeros_like(sigma2, dtype=torch.bool)
@@ -244,11 +242,9 @@ class KnowledgeValidityModule(nn.Module):
         v = v.masked_fill(off, 0.0)
         if corrections is not None:
             v = torch.where(off, 0.0, correction_validity(v, corrections, alphas, cfg.tau_high, active))
-        if held is not None:
-            v = hold_handovers(v, held & gate.unsqueeze(-1), alphas, candidate)
         weights = decision_weights(v, alphas, candidate)
         if corrections is not None:
-            weights = weights.masked_fill(corrections.gated.unsqueeze(0) & ~gate.unsqueeze(-1), 0.0)
+            weights = weights.masked_fill(corrections[0].unsqueeze(0) & ~gate.unsqueeze(-1), 0.0)
         telemetry = KvmStepTelemetry(energy=energy, validity=v, skill_weight=weights, invalid=invalid, **common)
         return weights, telemetry
 

@@ -20,15 +20,11 @@ Differences that fix pitfalls of the official code:
 """
 
 import json
-from collections.abc import Sequence
-from dataclasses import asdict, dataclass, replace
-from typing import Any
+from dataclasses import asdict, dataclass
 
 import torch
 import torch.nn.functional as F  # noqa: N812
 from torch import Tensor, nn
-
-from ..kvm.fusion import Corrections
 
 SKILL_TABLE_BYTES_PER_TASK = 1024
 # Distinct training queries (task strings) a skill keeps as prototypes of what it was trained on; more fold into
@@ -54,27 +50,16 @@ FUSION_EPS = 1e-12
 class Skill:
     """`corrects`: set on a skill the KVM created for a knowledge gap, the index of the skill it corrects. Such a
     skill is a correction for contexts outside the safe experience, not a replacement of what holds inside it:
-    the KVM keeps it out of force where its gate is closed (see `kvm.fusion.correction_validity`).
-    `takes_over`: set on a skill of the pool that a corrective demonstration showed performs the safe strategy
-    where that skill failed; it inherits validity from it as a correction does, and keeps its own routine.
-    `takes_over_on`: the instruction that demonstration was given under, the only task the takeover holds for (a
-    shared neighbour of several tasks, e.g. one whose firm grasp failed on a potato, must not pass the takeover to an
-    egg it is also the nearest skill for)."""
+    the KVM keeps it out of force where its gate is closed (see `kvm.fusion.correction_validity`)."""
 
     index: int
     name: str
     description: str
     corrects: int | None = None
-    takes_over: int | None = None
-    takes_over_on: str | None = None
 
     @property
     def gated(self) -> bool:
         return self.corrects is not None
-
-    @property
-    def inherits_from(self) -> int | None:
-        return self.corrects if self.corrects is not None else self.takes_over
 
 
 class _TaskSlice(nn.Module):
@@ -146,7 +131,7 @@ class CodaPromptPool(nn.Module):
         self.register_buffer("prototypes", torch.zeros(n_tasks, PROTOTYPES_PER_SKILL, query_dim))
         self.register_buffer("prototype_counts", torch.zeros(n_tasks, PROTOTYPES_PER_SKILL, dtype=torch.int64))
         self.register_load_state_dict_post_hook(CodaPromptPool._after_load)
-        self._corrections: tuple[tuple[Any, ...], Corrections | None] | None = None
+        self._corrections: tuple[int, torch.device, tuple[Tensor, Tensor] | None] | None = None
         self.refresh_trainable()
 
     # ----------------------------------------------------------------- bookkeeping
@@ -159,59 +144,21 @@ class CodaPromptPool(nn.Module):
     def skills(self) -> list[Skill]:
         raw = bytes(self.skill_table.cpu().numpy()).rstrip(b"\x00")
         entries = json.loads(raw.decode("utf-8")) if raw else []
-        return [
-            Skill(
-                int(e["index"]),
-                str(e["name"]),
-                str(e["description"]),
-                e.get("corrects"),
-                e.get("takes_over"),
-                e.get("takes_over_on"),
-            )
-            for e in entries
-        ]
+        return [Skill(int(e["index"]), str(e["name"]), str(e["description"]), e.get("corrects")) for e in entries]
 
-    def corrections(self, tasks: Sequence[str] | None = None) -> Corrections | None:
-        """Which skills inherit validity from another and which are gated (`kvm.fusion.Corrections`), or None when
-        none does. With the rows' instructions `tasks`, `applies` [B, S] scopes each takeover to the instruction it
-        was demonstrated on (None: unscoped). Cached: it is read on every control step."""
+    def corrections(self) -> tuple[Tensor, Tensor] | None:
+        """([n_skills] bool: the skill corrects another, [n_skills] index of the skill it corrects (itself
+        otherwise)), or None when no skill is a correction. Cached: it is read on every control step."""
         device = self.task_count.device
-        key = (self.n_skills, device, None if tasks is None else tuple(tasks))
-        if self._corrections is None or self._corrections[0] != key:
+        if self._corrections is None or self._corrections[:2] != (self.n_skills, device):
             skills = self.skills
             value = None
-            if any(s.inherits_from is not None for s in skills):
-                applies = None
-                if tasks is not None:
-                    applies = torch.tensor(
-                        [[s.takes_over is None or s.takes_over_on == t for s in skills] for t in tasks],
-                        dtype=torch.bool,
-                        device=device,
-                    )
-                value = Corrections(
-                    torch.tensor([s.inherits_from is not None for s in skills], dtype=torch.bool, device=device),
-                    torch.tensor(
-                        [s.index if s.inherits_from is None else s.inherits_from for s in skills], device=device
-                    ),
-                    torch.tensor([s.gated for s in skills], dtype=torch.bool, device=device),
-                    applies,
-                )
-            self._corrections = (key, value)
-        return self._corrections[1]
-
-    def set_takeover(self, skill: int, failed: int, task: str) -> None:
-        """Record that `skill`, a skill of the pool, performs the safe strategy under instruction `task` where skill
-        `failed` fails there: it inherits validity from it on that task (the latest such demonstration decides; a
-        knowledge-gap skill already inherits)."""
-        skills = self.skills
-        if not (0 <= skill < len(skills) and 0 <= failed < len(skills)) or skill == failed:
-            raise ValueError(f"a takeover needs two distinct skills in [0, {len(skills)}), got {skill} and {failed}")
-        if skills[skill].gated:
-            raise ValueError(
-                f"skill {skill} is a knowledge-gap correction; it inherits from skill {skills[skill].corrects}"
-            )
-        skills[skill] = replace(skills[skill], takes_over=failed, takes_over_on=task)
-        self._write_skill_table(skills)
+            if any(s.gated for s in skills):
+                mask = torch.tensor([s.gated for s in skills], dtype=torch.bool, device=device)
+                target = torch.tensor([s.index if s.corrects is None else s.corrects for s in skills], device=device)
+                value = (mask, target)
+            self._corrections = (self.n_skills, device, value)
+        return self._corrections[2]
 
     def _write_skill_table(self, skills: list[Skill]) -> None:
         raw = json.dumps([asdict(s) for s in skills], ensure_ascii=False).encode("utf-8")

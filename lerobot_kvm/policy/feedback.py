@@ -11,22 +11,20 @@ after an attempt:
   which the attempt left the culprit's safe experience for good, `SafeExperience.departed`) form a low-confidence
   hypothesis, or add evidence to a matching one. The failure context paired with the culprit becomes provisional
   h_fail negatives; a corrective demonstration gives positives for the skill that demonstrates the safe strategy
-  (its name in `demonstration["skill"]`, else, among the skills the KVM left in force, the one proposed for the
-  demonstration's instruction that performs it with its prompt alone, the alternative the removals agree on, or the
-  most relevant alternative), in its own contexts and in the failure context; a skill named or performing it alone
-  *takes over* from the culprit (it inherits validity where the culprit is suppressed, `fusion.Corrections`), and,
+  (its name in `demonstration["skill"]`, else the alternative the removals agree on, else the most relevant
+  alternative, each among the skills the KVM left in force), in its own contexts and in the failure context, and,
   where its contexts lie outside the culprit's safe experience or leave it for good (`SafeExperience`), more
   negatives for the culprit: the demonstration ran where the culprit failed, and once the shift shows, its contexts
   are what the culprit would meet there. Then a fixed budget of gradient steps updates the KVM, replaying the safe
   memory so that what was safe stays safe (the safe samples the update judges invalid are replayed at every step
   after, `kvm.feedback_hard_safe_replay`). This first update is what lowers v(culprit, failure context) already on
   the next attempt; the hypothesis governs confirmation. With a demonstration, the knowledge gap is tested at once
-  (`kvm.gap_on_failure`): if no skill of the pool performs the demonstration by itself and every alternative to the
-  culprit is weak in the failure context, suppression alone would leave no strategy, so a new *gated* skill that
-  corrects the culprit (`fusion.correction_validity`) is begun and seeded from the demonstration: KVM positives from
-  the demonstrated and the failed contexts; the feedback's gradient budget is then split between the KVM's update
-  and focused steps on the new skill's parameters only (`split_budget`: the budget counts all the mechanism trains).
-  Later failures of the same hypothesis, or blamed on it in its task, refine it.
+  (`kvm.gap_on_failure`): if every alternative to the culprit is weak in the failure context, suppression alone
+  would leave no strategy, so a new *gated* skill that corrects the culprit (`fusion.correction_validity`) is begun
+  and seeded from the demonstration: KVM positives from the demonstrated and the failed contexts; the feedback's
+  gradient budget is then split between the KVM's update and focused steps on the new skill's parameters only
+  (`split_budget`: the budget counts all the mechanism trains). Later failures of the same hypothesis, or blamed on
+  it in its task, refine it.
 * success: safe samples for the dominant skill (routine ones, without intervention, also feed the gate window
   and E_c's reconstruction). Interventions (a candidate suppressed, v_i < tau_v) in a context similar to an open
   hypothesis of that skill count for it; an intervention confirms it when the counter exceeds N_p and the skill
@@ -37,7 +35,7 @@ after an attempt:
   skill is created (an untrained one would only be noise).
 """
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -50,7 +48,6 @@ from ..kvm.attribution import (
     counterfactual_culprit,
     culprit_skill,
     demonstrated_skill,
-    explaining_skill,
     knowledge_gap,
     normalised_relevance,
 )
@@ -70,11 +67,6 @@ KNOWN_SAFE_QUANTILE = 0.95
 # action error on the corrective demonstration by more than this share, and by that much more than removing the
 # largest share does
 ATTRIBUTION_MARGIN = 0.1
-# A corrective demonstration is an existing skill's when that skill, its prompt alone, reproduces it at most this
-# share of the culprit's error alone (`explaining_skill`). Measured on the default pool: a scenario's safe skill
-# reproduces its demonstration at 0.02-0.14 of the culprit's error (5 scenarios); drawer's two pulls, which
-# differ only in how they meet a stuck drawer, at 1.25 (docs/measurements.md, the demonstration's own skill)
-EXPLAIN_RATIO = 0.5
 FOCUSED_LR = 3e-3  # App. D focused fine-tuning: Adam step size on the new skill's parameters
 
 
@@ -189,56 +181,37 @@ def _cat_frames(parts: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- counterfactual attribution
-def _demo_error(policy: FeedbackPolicy, frames: dict[str, Any]) -> Callable[[Tensor], float]:
-    """The policy's action error on demonstration frames under given skill weights [T, S]: the mean squared error
-    of the predicted chunks against the demonstrated ones (normalized actions, padding excluded)."""
+@torch.no_grad()
+def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], proposed: Tensor) -> tuple[float, Tensor]:
+    """The policy's action error on demonstration frames with every active skill in force (eq. 3 with every v = 1,
+    before the KVM's re-weighting), and [S] the error with each candidate taken out of the fusion (inf elsewhere).
+
+    The error is the mean squared error of the predicted chunks against the demonstrated ones (normalized
+    actions, padding excluded)."""
+    training = policy.training
     device = policy.query_fingerprint.device
-    batch: dict[str, Any] = {k: frames[k].to(device) for k in _observation_keys(policy)}
+    keys = _observation_keys(policy)
+    batch: dict[str, Any] = {k: frames[k].to(device) for k in keys}
     batch["task"] = frames["task"]
     target, pad = frames[ACTION].to(device), frames[ACTION_PAD].to(device)
     kept = (~pad).sum(-1).clamp_min(1)
+    relevance = policy.pool.skill_relevance(policy.encode_query(frames["task"])).to(target.dtype)
+    active = policy.kvm_active_skills()
+    base = decision_weights(torch.ones_like(relevance), relevance, candidates(relevance, active))
 
     def error(weights: Tensor) -> float:
         chunk = policy.predict_action_chunk(batch, skill_weights=weights)
         per_step = (chunk - target).pow(2).mean(-1).masked_fill(pad, 0.0)
         return float((per_step.sum(-1) / kept).mean())
 
-    return error
-
-
-@torch.no_grad()
-def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], proposed: Tensor) -> tuple[float, Tensor]:
-    """The policy's action error on demonstration frames with every active skill in force (eq. 3 with every v = 1,
-    before the KVM's re-weighting), and [S] the error with each candidate taken out of the fusion (inf elsewhere)."""
-    training = policy.training
-    error = _demo_error(policy, frames)
-    relevance = policy.pool.skill_relevance(policy.encode_query(frames["task"]))
-    active = policy.kvm_active_skills()
-    base = decision_weights(torch.ones_like(relevance), relevance, candidates(relevance, active))
     full = error(base)
-    without = torch.full((base.shape[1],), float("inf"), device=base.device)
+    without = torch.full((base.shape[1],), float("inf"), device=device)
     for i in torch.nonzero(proposed).flatten().tolist():
         weights = base.clone()
         weights[:, i] = 0.0
         without[i] = error(weights)
     policy.train(training)
     return full, without
-
-
-@torch.no_grad()
-def alone_errors(policy: FeedbackPolicy, frames: dict[str, Any], skills: Tensor) -> Tensor:
-    """[S] the action error on demonstration frames of each of `skills` [S] bool with its prompt alone (every
-    other weight zero; inf elsewhere): which skill performs, by itself, what was demonstrated."""
-    training = policy.training
-    error = _demo_error(policy, frames)
-    n = frames[ACTION].shape[0]
-    out = torch.full((len(skills),), float("inf"), device=skills.device)
-    for i in torch.nonzero(skills).flatten().tolist():
-        weights = torch.zeros(n, policy.n_skills, device=policy.query_fingerprint.device)
-        weights[:, i] = 1.0
-        out[i] = error(weights)
-    policy.train(training)
-    return out
 
 
 def _attribute(
@@ -346,11 +319,6 @@ def relied_on(weights: Tensor, relevance: Tensor, intervention: Tensor) -> Tenso
     rows = torch.where(intervention & carried_before, relevance, executed)
     acted = rows.sum(-1) > 0
     return rows[acted] if bool(acted.any()) else relevance
-
-
-def _finite(values: Tensor) -> dict[int, float]:
-    """{skill: value} of a per-skill vector's finite entries, for the feedback's report."""
-    return {int(i): float(values[i]) for i in torch.nonzero(torch.isfinite(values)).flatten()}
 
 
 def _steps(mask: Tensor) -> list[int]:
@@ -475,8 +443,6 @@ class _Failure:
     gap: dict[str, Any] | None = None  # the gap skill the demonstration seeds
     demo_negative_steps: list[int] = field(default_factory=list)
     demo_query: Tensor | None = None
-    alone: Tensor | None = None  # [S] each skill's action error on the demonstration with its prompt alone
-    takes_over: bool = False  # the demonstrated skill, one of the pool's, now takes over from the culprit
 
 
 def _learn_from_failure(
@@ -533,8 +499,6 @@ def _learn_from_failure(
         demo_negative_steps=failure.demo_negative_steps,
         positives_added=len(new_safe[0]),
         demo_skill=failure.demo_skill,
-        demo_alone_error={} if failure.alone is None else _finite(failure.alone),
-        takes_over=failure.takes_over,
         suppressed_at_failure=suppressed,
         kvm_metrics=metrics,
     )
@@ -549,37 +513,26 @@ def _learn_from_demonstration(
     demonstration: dict[str, Any],
 ) -> None:
     """What a failure's corrective demonstration teaches: the skill it demonstrates (a gap skill begun for it, the
-    skill it names or the one that performs it alone, which then takes over from the culprit, the one the
-    attribution agrees on, or the most relevant alternative) is safe in its contexts and in the failure context;
-    where it leaves the culprit's safe experience it adds negatives for the culprit."""
+    skill it names, the one the attribution agrees on, or the most relevant alternative) is safe in its contexts
+    and in the failure context; where it leaves the culprit's safe experience it adds negatives for the culprit."""
     cfg = policy.config.kvm
     kvm = policy.kvm
     culprit = failure.culprit
     device = attempt.c_raw.device
-    with torch.no_grad():
-        failure.demo_query = policy.encode_query(frames["task"])
-        d_raw = kvm.raw_context(frames[policy.config.context_key].to(device), failure.demo_query)
-        d_alphas = policy.pool.skill_relevance(failure.demo_query)
     named = skill_by_name(policy, demonstration.get("skill"))
-    if named is None:  # the skill of the pool that performs the demonstration by itself, if one does
-        eligible = candidates(d_alphas, attempt.active).any(0) & attempt.in_force
-        eligible[culprit] = True
-        failure.alone = alone_errors(policy, frames, eligible)
-        named = explaining_skill(failure.alone, culprit, eligible, EXPLAIN_RATIO)
     if cfg.gap_on_failure and attempt.gradient_steps and named is None:  # a demonstrated skill the pool has is no gap
         relevance = attempt.relevance[failure.context]
         failure.gap = _gap_skill(policy, failure.hypothesis_id, culprit, relevance, attempt.active, attempt.task)
         attempt.active = policy.kvm_active_skills()
     active = attempt.active
-    with torch.no_grad():  # a gap skill begun above has joined the pool's relevance
+    with torch.no_grad():
+        failure.demo_query = policy.encode_query(frames["task"])
+        d_raw = kvm.raw_context(frames[policy.config.context_key].to(device), failure.demo_query)
         d_rel = normalised_relevance(policy.pool.skill_relevance(failure.demo_query), active)
     if failure.gap is not None:
         failure.demo_skill = failure.gap["index"]
     elif named is not None:
         failure.demo_skill = named
-        if named != culprit and not policy.skills[named].gated:  # it takes over where the culprit is suppressed
-            policy.pool.set_takeover(named, culprit, frames["task"][0])
-            failure.takes_over = True
     elif attribution["agrees"] is not None and bool(active[attribution["agrees"]]):
         failure.demo_skill = attribution["agrees"]
     else:
@@ -693,7 +646,7 @@ def _gap_skill(
     if made < 0 and skills[culprit].gated and len(relevance):
         # a failing correction is refined where the task relies on the skill it corrects; elsewhere it is the
         # attribution's to judge (never a correction of a correction)
-        scale = plain_scale(relevance, policy.pool.corrections().gated).mean()
+        scale = plain_scale(relevance, policy.pool.corrections()[0]).mean()
         if relevance[:, skills[culprit].corrects].mean() >= policy.config.kvm.tau_high * scale:
             made = culprit
     if made >= 0:

@@ -209,8 +209,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
     def kvm_validity(self, batch: dict[str, Any]) -> Tensor:
         """v [B, n_skills] of the batch's contexts with the gate bypassed (the risk model's judgement)."""
         batch_size = self._check_observation(batch)
-        tasks = self._tasks(batch, batch_size)
-        query = self.encode_query(tasks)
+        query = self.encode_query(self._tasks(batch, batch_size))
         c_raw = self.kvm.raw_context(batch[self.config.context_key], query)
         v = self.kvm.validity_of(c_raw, self.n_skills)
         return v * self.kvm_active_skills().to(v)
@@ -271,7 +270,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self._kvm_trace = KvmTrace()
         self._kvm_telemetry = None
         self._queued_interventions: Tensor | None = None
-        self._held: Tensor | None = None  # [B, S] bool: suppressions that handed over, held while the gate is open
         self._last_action = None
 
     def forward(
@@ -282,8 +280,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
         if reduction not in ("mean", "none"):
             raise ValueError(f"reduction must be 'mean' or 'none', got {reduction!r}")
         batch_size = self._check_observation(batch)
-        tasks = self._tasks(batch, batch_size)
-        query = self.encode_query(tasks)
+        query = self.encode_query(self._tasks(batch, batch_size))
         own = skill_weights is None
         if own:
             skill_weights = self.pool.own_weights(self.n_skills - 1, batch_size, query.device)
@@ -350,7 +347,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
         if self._action_queue and gate_open and self._kvm_active(skill_weights):
             pending = self._plan(batch, skill_weights)
             self._kvm_telemetry = pending[2]
-            self._hold(pending[2])
             if self._queued_interventions is not None and torch.equal(
                 pending[2].intervention, self._queued_interventions
             ):
@@ -365,22 +361,10 @@ class CodaKvmPolicy(PreTrainedPolicy):
             self._action_queue.extend(chunk[:, : self.config.n_action_steps].transpose(0, 1))
             self._kvm_telemetry = telemetry
             self._queued_interventions = None if telemetry is None else telemetry.intervention
-            if pending is None:
-                self._hold(telemetry)
         action = self._action_queue.popleft()
         self._last_action = action
         self._record_step(batch, action)
         return action
-
-    def _hold(self, telemetry: KvmStepTelemetry | None) -> None:
-        """Hold this step's handovers (suppressions with a candidate left in force) while the gate stays open."""
-        if telemetry is None or telemetry.gate is None:
-            self._held = None
-            return
-        gate = telemetry.gate.unsqueeze(-1)
-        handed = telemetry.intervention & ~telemetry.abstained.unsqueeze(-1)
-        held = self._held if self._held is not None and self._held.shape == handed.shape else False
-        self._held = (handed | held) & gate
 
     def _to_eval(self) -> None:
         """Inference runs in eval mode; `eval()` walks every submodule, which costs more than the KVM's gate-closed
@@ -445,8 +429,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
         gate, energies, v) and turns it into eq. 3's decision weights (line 20). Explicit skill weights skip both;
         the KVM disabled keeps every v = 1 (telemetry None in both cases)."""
         batch_size = self._check_observation(batch)
-        tasks = self._tasks(batch, batch_size)
-        query = self.encode_query(tasks)
+        query = self.encode_query(self._tasks(batch, batch_size))
         relevance, anchors = self.pool.propose(query)
         alphas = self.pool.anchored_alphas(anchors)  # each skill as it was trained on its nearest task
         if skill_weights is not None:
@@ -465,8 +448,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
             relevance,
             self.kvm.metabolism.active(n),
             self.kvm.metabolism.all_active(n),
-            self.pool.corrections(tasks),
-            self._held if self._held is not None and self._held.shape == relevance.shape else None,
+            self.pool.corrections(),
         )
         return alphas, weights, telemetry
 

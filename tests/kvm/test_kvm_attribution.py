@@ -12,7 +12,6 @@ from lerobot_kvm.kvm.attribution import (
     agreeing_skill,
     counterfactual_culprit,
     culprit_skill,
-    explaining_skill,
     knowledge_gap,
     normalised_relevance,
 )
@@ -115,17 +114,6 @@ def test_counterfactual_culprit_needs_a_margin_over_the_proposed_skills_removal(
     # the skill that shows the correction: its removal hurts most (skill 1, +0.30); none when removals only help
     assert agreeing_skill(1.0, without, candidates, culprit=2) == 1
     assert agreeing_skill(1.0, without, candidates, culprit=1) is None
-
-
-def test_the_explaining_skill_performs_the_demonstration_alone_far_better_than_the_culprit() -> None:
-    alone = torch.tensor([0.20, 0.02, 0.09, 0.001])
-    eligible = torch.tensor([True, True, True, False])
-    # skill 1 reproduces the demonstration at 0.1 of the culprit's error; skill 3 better still, but not proposed
-    assert explaining_skill(alone, culprit=0, eligible=eligible, ratio=0.5) == 1
-    assert explaining_skill(alone, culprit=0, eligible=eligible, ratio=0.05) is None  # 0.02 > 0.05 * 0.20
-    # the culprit itself is never the explanation, and a culprit that performs it best leaves none
-    assert explaining_skill(alone, culprit=1, eligible=eligible, ratio=0.5) is None  # 0.09 > 0.5 * 0.02
-    assert explaining_skill(alone, culprit=1, eligible=torch.tensor([False, True, False, False]), ratio=1.0) is None
 
 
 def test_a_demonstration_verifies_the_culprit_by_removing_each_proposed_skill(
@@ -300,50 +288,6 @@ def test_a_demonstration_of_a_skill_the_pool_has_is_no_knowledge_gap(make_policy
     assert report["new_skill"] is None and named.n_skills == 2
     # the demonstrated contexts, and the failure contexts (some of the attempt's 6 steps) are safe for that skill
     assert report["demo_skill"] == 1 and 5 < report["positives_added"] <= 5 + 6
-
-
-def test_a_demonstration_one_skill_performs_alone_is_that_skills_however_weak_its_relevance(
-    make_policy, make_batch, attempt
-) -> None:
-    """The demonstration is exactly what skill 1, learned for another task, does with its prompt alone: it is no
-    knowledge gap, and the demonstrated contexts become that skill's positives."""
-    policy = make_policy(chunk_size=1, n_action_steps=1)
-    policy.begin_new_skill("gentle_grasp")
-    policy.pool.observe_queries(policy.encode_query(["pick up the egg gently"]))
-    with torch.no_grad():  # a prompt of its own, far from the pretraining skill's
-        for p in policy.pool.tasks[1].parameters():
-            p.mul_(20.0)
-    assert policy.skill_relevance([EGG])[0, 1] < 1e-4  # weak: by relevance alone, a knowledge gap
-    trace = attempt(policy, EGG, steps=6)
-    alone = policy.pool.own_weights(1, 1)
-    steps = []
-    for t in range(5):
-        b = make_batch(policy.config, batch_size=1, task=EGG, seed=50 + t)
-        b["action"] = policy.predict_action_chunk(b, skill_weights=alone)[:, 0]
-        steps.append(b)
-    report = policy.kvm_feedback("catastrophe", trace, demonstration=make_demonstration(steps), gradient_steps=2)
-    assert report["culprit"] == 0 and report["demo_skill"] == 1
-    assert report["new_skill"] is None and policy.n_skills == 2
-    errors = report["demo_alone_error"]
-    assert errors[1] < 1e-10 < errors[0]
-    assert (report["kvm_steps"], report["skill_steps"]) == (2, 0)
-    # it takes over from the culprit: judged invalid too in a context where the culprit is suppressed, it inherits
-    # the culprit's lost validity instead of leaving nothing to act (an abstention)
-    assert report["takes_over"] and policy.skills[1].takes_over == 0 and not policy.skills[1].gated
-    assert policy.skills[1].takes_over_on == EGG
-    policy.kvm.skill_energies = lambda mu, n, risk_model=None: torch.full((len(mu), n), 20.0)
-    policy.kvm.set_gate_override("open")
-    policy.reset()
-    batch = make_batch(policy.config, batch_size=1, task=EGG, with_action=False)
-    policy.select_action(batch)
-    tele = policy.kvm_telemetry
-    assert not tele.abstained.any() and tele.skill_weight[0, 0] == 0.0 < tele.skill_weight[0, 1]
-    # under another instruction, though skill 1 is still a candidate there, the takeover does not hold: nothing
-    # valid is left, and the policy abstains
-    policy.reset()
-    policy.select_action(make_batch(policy.config, batch_size=1, task="pick up an egg", with_action=False))
-    tele = policy.kvm_telemetry
-    assert tele.candidate[0, 1] and tele.abstained.all()
 
 
 def test_a_failure_with_the_culprit_suppressed_restarts_its_persistence(make_policy, attempt) -> None:

@@ -8,14 +8,7 @@ from torch import Tensor, nn
 
 from lerobot_kvm.kvm.context_encoder import ContextEncoder
 from lerobot_kvm.kvm.energy import EnergyModel, JointFeature, RiskClassifier, validity
-from lerobot_kvm.kvm.fusion import (
-    Corrections,
-    abstains,
-    candidates,
-    correction_validity,
-    decision_weights,
-    hold_handovers,
-)
+from lerobot_kvm.kvm.fusion import abstains, candidates, correction_validity, decision_weights
 from lerobot_kvm.kvm.gate import SmartGate, adaptive_threshold
 from lerobot_kvm.kvm.losses import bce_loss, contrastive_loss, energy_loss, total_loss
 from lerobot_kvm.kvm.metabolism import SkillMetabolism, fcrnc, srnc
@@ -173,16 +166,6 @@ def test_eq3_decision_weights_candidates_and_abstention_hand_values() -> None:
     torch.testing.assert_close(tiny, torch.tensor([[1.0, 0.5]]))
 
 
-def test_a_held_handover_stays_suppressed_unless_holding_it_would_abstain() -> None:
-    alphas = torch.tensor([[1.0, 0.5], [1.0, 0.5], [1.0, 0.5]])
-    cand = torch.ones(3, 2, dtype=torch.bool)
-    v = torch.tensor([[0.8, 0.9], [0.8, 0.05], [0.8, 0.9]])
-    held = torch.tensor([[True, False], [True, False], [False, False]])
-    # row 0: skill 0 handed over earlier and holds; row 1: holding it would leave nothing valid, so v stands
-    expected = torch.tensor([[0.0, 0.9], [0.8, 0.05], [0.8, 0.9]])
-    torch.testing.assert_close(hold_handovers(v, held, alphas, cand), expected)
-
-
 def test_a_correction_is_valid_at_least_where_the_skill_it_corrects_is_not_and_is_relied_on() -> None:
     v = torch.tensor([[0.02, 0.9, 0.1], [0.95, 0.3, 0.05], [0.0, 0.0, 0.0]])
     corrections = (torch.tensor([False, False, True]), torch.tensor([0, 1, 0]))  # skill 2 corrects skill 0
@@ -191,24 +174,6 @@ def test_a_correction_is_valid_at_least_where_the_skill_it_corrects_is_not_and_i
     expected = torch.tensor([[0.02, 0.9, 0.98], [0.95, 0.3, 0.05], [0.0, 0.0, 0.0]])
     assert torch.allclose(correction_validity(v, corrections, alphas, necessity=0.8), expected)
     assert correction_validity(v, None, alphas) is v
-
-
-def test_a_skill_that_takes_over_inherits_only_where_the_skill_it_took_over_from_is_the_tasks_knowledge() -> None:
-    takeover = Corrections(torch.tensor([False, True]), torch.tensor([0, 0]), torch.tensor([False, False]))
-    v = torch.tensor([[0.02, 0.01], [0.02, 0.01]])
-    # row 0: skill 0's task, skill 1 inherits; row 1: skill 1's own task (its relevance the largest), skill 0 a
-    # bystander there (0.5 < 0.8 of 1.0), so nothing is inherited
-    alphas = torch.tensor([[1.0, 0.1], [0.5, 1.0]])
-    expected = torch.tensor([[0.02, 0.98], [0.02, 0.01]])
-    torch.testing.assert_close(correction_validity(v, takeover, alphas, necessity=0.8), expected)
-    # nor where its target, though necessary (0.9 >= 0.8 of 1.0), ranks below it
-    close = torch.tensor([[1.0, 0.1], [0.9, 1.0]])
-    torch.testing.assert_close(correction_validity(v, takeover, close, necessity=0.8), expected)
-    gap = Corrections(takeover.mask, takeover.target, takeover.mask)  # a gap skill: left out of the scale
-    torch.testing.assert_close(correction_validity(v, gap, alphas, necessity=0.8), torch.tensor([[0.02, 0.98]] * 2))
-    # scoped to another instruction in row 0: nothing is inherited there
-    scoped = takeover._replace(applies=torch.tensor([[True, False], [True, True]]))
-    torch.testing.assert_close(correction_validity(v, scoped, alphas, necessity=0.8), v)
 
 
 def test_of_several_corrections_of_one_skill_only_the_most_valid_inherits_and_a_pruned_skill_passes_nothing() -> None:

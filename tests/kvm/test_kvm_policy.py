@@ -196,36 +196,6 @@ def test_with_the_gate_open_a_suppression_replans_within_one_step(make_policy, m
     assert len(policy._action_queue) == 1 and not policy.kvm_telemetry.intervention.any()
 
 
-def test_a_handover_holds_while_the_gate_stays_open(make_policy, make_batch, monkeypatch) -> None:
-    """The prior skill suppressed once, with its alternative valid, stays suppressed at the next open-gate steps
-    however its energy flickers back; the gate closing releases it."""
-    policy = two_skill_policy(make_policy)
-    batch = make_batch(policy.config, batch_size=1, with_action=False)
-    assert policy.kvm_telemetry is None
-    energy = torch.tensor([[20.0, -20.0]])  # v(skill 0) ~ 0, v(skill 1) ~ 1
-    monkeypatch.setattr(policy.kvm, "skill_energies", lambda mu, n, risk_model=None: energy.expand(len(mu), n))
-    policy.kvm.set_gate_override("open")
-    policy.select_action(batch)
-    tele = policy.kvm_telemetry
-    assert tele.candidate[0].all() and tele.intervention[0].tolist() == [True, False]
-    energy.fill_(-20.0)  # skill 0 judged valid again
-    policy.select_action(batch)
-    assert policy.kvm_telemetry.intervention[0].tolist() == [True, False]  # held: no hand-back
-    policy.kvm.set_gate_override("closed")
-    policy.select_action(batch)
-    policy.select_action(batch)  # a new chunk, assessed with the gate closed
-    policy.kvm.set_gate_override("open")
-    policy.select_action(batch)
-    policy.select_action(batch)
-    assert not policy.kvm_telemetry.intervention.any()  # released when the gate closed
-    energy.fill_(20.0)  # both suppressed: an abstention is never held
-    policy.select_action(batch)
-    assert policy.kvm_telemetry.abstained.all()
-    energy.fill_(-20.0)
-    policy.select_action(batch)
-    assert not policy.kvm_telemetry.intervention.any()
-
-
 def test_forward_learns_the_kvm_offline_and_reports_metrics(make_policy, make_batch) -> None:
     policy = two_skill_policy(make_policy)
     policy.train()

@@ -152,8 +152,8 @@ def test_corrections_are_kept_in_the_skill_table_and_default_to_none() -> None:
     with pytest.raises(ValueError, match="corrects"):
         pool.begin_skill("fix", corrects=1)  # only an earlier skill can be corrected
     pool.begin_skill("fix", "a knowledge-gap skill", corrects=0)
-    mask, target, gated, _ = pool.corrections()
-    assert mask.tolist() == gated.tolist() == [False, True] and target.tolist() == [0, 0]
+    mask, target = pool.corrections()
+    assert mask.tolist() == [False, True] and target.tolist() == [0, 0]
     fresh = CodaPromptPool(n_layers=2, pool_size=6, n_tasks=3, prompt_length=4, dim_model=8, query_dim=16)
     fresh.load_state_dict(pool.state_dict())
     assert fresh.skills[1] == Skill(1, "fix", "a knowledge-gap skill", corrects=0) and fresh.skills[1].gated
@@ -164,28 +164,6 @@ def test_corrections_are_kept_in_the_skill_table_and_default_to_none() -> None:
     table[: len(legacy)] = torch.frombuffer(bytearray(legacy), dtype=torch.uint8)
     fresh.load_state_dict({**fresh.state_dict(), "skill_table": table, "task_count": torch.ones(1, dtype=torch.int64)})
     assert fresh.skills == [Skill(0, "old", "")] and fresh.corrections() is None
-
-
-def test_a_takeover_inherits_like_a_correction_but_is_not_gated_and_holds_on_its_instruction_only() -> None:
-    pool = make_pool(1)
-    pool.begin_skill("gentle", "the safe strategy, learned on its own instruction")
-    with pytest.raises(ValueError, match="distinct"):
-        pool.set_takeover(1, 1, "pick up the egg")
-    pool.set_takeover(1, 0, "pick up the egg")
-    mask, target, gated, applies = pool.corrections()
-    assert mask.tolist() == [False, True] and target.tolist() == [0, 0] and not gated.any() and applies is None
-    applies = pool.corrections(["pick up the egg", "pick up the potato"]).applies
-    assert applies.tolist() == [[True, True], [True, False]]  # the takeover holds on its instruction only
-    pool.begin_skill("fix", corrects=0)
-    with pytest.raises(ValueError, match="knowledge-gap"):
-        pool.set_takeover(2, 1, "pick up the egg")
-    fresh = CodaPromptPool(n_layers=2, pool_size=6, n_tasks=3, prompt_length=4, dim_model=8, query_dim=16)
-    fresh.load_state_dict(pool.state_dict())
-    assert fresh.skills[1].takes_over == 0 and fresh.skills[1].takes_over_on == "pick up the egg"
-    assert not fresh.skills[1].gated
-    mask, target, gated, applies = fresh.corrections(["pick up the potato"])
-    assert mask.tolist() == [False, True, True] and gated.tolist() == [False, False, True]
-    assert applies.tolist() == [[True, False, True]]  # a gap skill's own necessity test decides where it acts
 
 
 def test_skill_table_overflow_is_an_error() -> None:
