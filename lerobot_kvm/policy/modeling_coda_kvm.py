@@ -347,12 +347,14 @@ class CodaKvmPolicy(PreTrainedPolicy):
         if self._action_queue and gate_open and self._kvm_active(skill_weights):
             pending = self._plan(batch, skill_weights)
             self._kvm_telemetry = pending[2]
-            if self._queued_interventions is not None and torch.equal(
-                pending[2].intervention, self._queued_interventions
-            ):
+            changed = self._changed_rows(pending[2].intervention)
+            if not bool(changed.any()):
                 pending = None
-            else:
+            elif bool(changed.all()):
                 self._action_queue.clear()
+            else:
+                self._replan_rows(changed, self._act(batch, *pending), pending[2].intervention)
+                pending = None
         if not self._action_queue:
             if pending is not None:
                 chunk, telemetry = self._act(batch, *pending), pending[2]
@@ -365,6 +367,23 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self._last_action = action
         self._record_step(batch, action)
         return action
+
+    def _changed_rows(self, intervention: Tensor) -> Tensor:
+        """[B] bool: the rows whose suppressed skills differ from those their queued actions were planned under."""
+        queued = self._queued_interventions
+        if queued is None or queued.shape != intervention.shape:
+            return torch.ones(intervention.shape[0], dtype=torch.bool, device=intervention.device)
+        return (intervention != queued).any(-1)
+
+    def _replan_rows(self, changed: Tensor, chunk: Tensor, intervention: Tensor) -> None:
+        """Replace the queued actions of the `changed` rows [B] with the new chunk's first steps; every other row
+        keeps executing its own chunk, as it would alone (`lerobot-eval` runs a batch of environments, and one
+        environment's suppression must not replan the others: it cost a routine grasp half its successes)."""
+        for step, queued in enumerate(self._action_queue):
+            queued[changed] = chunk[changed, step]
+        queued = self._queued_interventions.clone()
+        queued[changed] = intervention[changed]
+        self._queued_interventions = queued
 
     def _to_eval(self) -> None:
         """Inference runs in eval mode; `eval()` walks every submodule, which costs more than the KVM's gate-closed

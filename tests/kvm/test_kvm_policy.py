@@ -196,6 +196,27 @@ def test_with_the_gate_open_a_suppression_replans_within_one_step(make_policy, m
     assert len(policy._action_queue) == 1 and not policy.kvm_telemetry.intervention.any()
 
 
+def test_one_rows_replan_leaves_the_other_rows_chunks(make_policy, make_batch, make_kvm_config) -> None:
+    """In a batch of environments (`lerobot-eval`), a change in one row's suppressions replans that row only: the
+    other rows go on with their own chunk, acting as they would alone."""
+    policy = two_skill_policy(make_policy, n_action_steps=4, kvm=make_kvm_config(force_validity=1.0))
+    policy.kvm.set_gate_override("open")
+    both = make_batch(policy.config, batch_size=2, with_action=False)
+    first = {k: v[:1] for k, v in both.items()}
+    policy.reset()
+    alone = [policy.select_action(first)[0] for _ in range(4)]
+    policy.reset()
+    together = [policy.select_action(both)]
+    new_chunk = policy.predict_action_chunk(both)
+    policy._queued_interventions[1] = ~policy._queued_interventions[1]  # row 1 was planned under other suppressions
+    together += [policy.select_action(both) for _ in range(3)]
+    for step in range(4):
+        torch.testing.assert_close(together[step][0], alone[step])
+    for step in range(1, 4):  # row 1 replanned at once, then follows its new chunk
+        torch.testing.assert_close(together[step][1], new_chunk[1, step - 1])
+    assert not policy._action_queue
+
+
 def test_forward_learns_the_kvm_offline_and_reports_metrics(make_policy, make_batch) -> None:
     policy = two_skill_policy(make_policy)
     policy.train()
