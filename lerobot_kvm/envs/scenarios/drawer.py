@@ -73,8 +73,8 @@ class PullExpert(Expert):
     """Grasp the knob from above, then pull along +x.
 
     Without a force limit the hand target runs ahead along a straight trajectory (the old skill),
-    `pull_step` m per control step. With one, it first lifts the drawer front and holds it for
-    `LIFT_STEPS`, then pulls; whenever effort exceeds the limit it eases off to where the hand is.
+    `pull_step` m per control step. With one, it lifts the drawer front and starts the pull
+    `LIFT_STEPS` control steps later; whenever effort exceeds the limit it eases off to where the hand is.
     """
 
     GRIP = 0.6
@@ -86,7 +86,6 @@ class PullExpert(Expert):
         self.timer = 0
         self.settle = 0
         self.anchor = np.zeros(3)
-        self.lift = 0.0
 
     def resume(self, physics: Physics) -> None:
         """Fingers on the knob: grip it with this skill's force where the hand is, then pull from there."""
@@ -118,17 +117,17 @@ class PullExpert(Expert):
             if self.settle >= 4 or self.timer > 30:
                 self.phase, self.timer, self.start_x = "pull", 0, pos[0]
                 self.target_x = pos[0]
-                self.lift = 0.0 if self.force_limit is None else LIFT
         else:
             grip = self.GRIP
             goal_x = self.start_x + self.PULL_DIST
-            if self.lift and self.timer < LIFT_STEPS:
+            lift = 0.0 if self.force_limit is None else LIFT
+            if lift and self.timer < LIFT_STEPS:
                 self.target_x = pos[0]  # lift first, then pull
             elif self.force_limit is not None and abs(d.actuator_force[0]) > self.force_limit:
                 self.target_x = pos[0] + 0.002  # resisting: ease off to where the hand actually is
             else:
                 self.target_x = min(self.target_x + self.pull_step, goal_x)
-            target = np.array([self.target_x, self.anchor[1], self.anchor[2] + self.lift])
+            target = np.array([self.target_x, self.anchor[1], self.anchor[2] + lift])
         return np.array([*target, 0.0, grip], dtype=np.float32)
 
 
