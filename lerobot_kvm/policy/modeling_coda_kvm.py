@@ -33,7 +33,6 @@ from .coda_prompt import CodaPromptPool, Skill
 from .configuration_coda_kvm import CodaKvmConfig, check_checkpoint_config
 from .feedback import apply_feedback
 from .input_range import check_input_values
-from .relative_action import state_base, state_offset
 from .text_encoder import FrozenTextEncoder
 
 TASK_KEY = "task"
@@ -86,7 +85,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self.kvm = KnowledgeValidityModule(config.kvm, config.context_dim, config.query_dim, config.n_tasks)
         self.register_buffer("query_fingerprint", torch.zeros(config.query_dim))
         self._init_abstention(kwargs.get("dataset_stats"), kwargs.get("dataset_meta"))
-        self._init_state_base(kwargs.get("dataset_stats"), kwargs.get("dataset_meta"))
         self._query_checked = False
         self.register_load_state_dict_post_hook(CodaKvmPolicy._after_load)
         self.backbone.requires_grad_(config.train_backbone)
@@ -107,29 +105,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self.register_buffer("rest_action", normalized_rest(action_stats, mode, dim))
         self.register_buffer("release_mask", release_mask(names, dim))
         self._last_action: Tensor | None = None
-
-    def _init_state_base(self, stats: dict | None, dataset_meta: Any) -> None:
-        """Which action dimensions are predicted relative to the state (`policy.relative_action`), from the training
-        dataset's feature names and statistics (kept in the checkpoint)."""
-        features = getattr(dataset_meta, "features", None) or {}
-
-        def names(key: str) -> list[str] | None:
-            feature = features.get(key)
-            return feature.get("names") if isinstance(feature, dict) else None
-
-        mapping = self.config.normalization_mapping
-        index, scale, shift = state_base(
-            names(ACTION),
-            names(OBS_STATE),
-            (stats or {}).get(ACTION),
-            (stats or {}).get(OBS_STATE),
-            mapping.get("ACTION"),
-            mapping.get("STATE"),
-            self.config.action_dim,
-        )
-        self.register_buffer("state_base_index", index)
-        self.register_buffer("state_base_scale", scale)
-        self.register_buffer("state_base_shift", shift)
 
     def _kvm_load_dataset_labels(self, dataset_meta: Any) -> None:
         """episode_index -> (skill, outcome, variant) from the recorder's labels, for offline KVM learning."""
@@ -538,10 +513,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
         weights [B, S])."""
         prompts = self.pool.prompt_from_alphas(alphas, skill_weights)
         images = [batch[key] for key in self.config.image_features]
-        state = batch[OBS_STATE]
-        offsets = self.backbone(images, state, batch[self.config.context_key], prompts)
-        base = state_offset(state, self.state_base_index, self.state_base_scale, self.state_base_shift)
-        return offsets + base.unsqueeze(1)
+        return self.backbone(images, batch[OBS_STATE], batch[self.config.context_key], prompts)
 
     # ----------------------------------------------------------------- input checks
     def _check_observation(self, batch: dict[str, Any]) -> int:
