@@ -102,6 +102,12 @@ def _orthonormal_extension(old: Tensor, n_new: int) -> Tensor:
     return torch.stack(new_rows)
 
 
+def _cos_alphas(query: Tensor, attn: Tensor, keys: Tensor) -> Tensor:
+    """alpha [n_layers, B, M] = cos(q * A_m, K_m) for attention vectors and keys [n_layers, M, Dq]."""
+    attended = F.normalize(torch.einsum("bd,lmd->lbmd", query, attn), dim=-1)
+    return torch.einsum("lbmd,lmd->lbm", attended, F.normalize(keys, dim=-1))
+
+
 class CodaPromptPool(nn.Module):
     """Task-incremental CODA-Prompt pool for the first `n_layers` transformer layers."""
 
@@ -222,9 +228,14 @@ class CodaPromptPool(nn.Module):
 
     def component_alphas(self, query: Tensor) -> Tensor:
         """alpha [n_layers, B, M_visible] = cos(q * A_m, K_m) (no softmax, can be negative)."""
-        keys = F.normalize(self._visible("keys"), dim=-1)  # [L, M, Dq]
-        attended = F.normalize(torch.einsum("bd,lmd->lbmd", query, self._visible("attn")), dim=-1)
-        return torch.einsum("lbmd,lmd->lbm", attended, keys)
+        return _cos_alphas(query, self._visible("attn"), self._visible("keys"))
+
+    def own_prompt(self, query: Tensor, skill: int) -> Tensor:
+        """P_i [n_layers, B, Lp, D] of skill `skill` alone: eq. 3 with one-hot weights, computed from that skill's
+        rows only. Every other row's weight is 0, and reading them anyway made a training step grow with the pool
+        (docs/measurements.md, the training step's cost)."""
+        task = self.tasks[skill]
+        return torch.einsum("lbm,lmkd->lbkd", _cos_alphas(query, task.attn, task.keys), task.prompts)
 
     @torch.no_grad()
     def propose(self, query: Tensor) -> tuple[Tensor, Tensor]:

@@ -269,8 +269,7 @@ def focused_finetune(
             for _ in range(steps):
                 idx = torch.randperm(n, device=device)[:batch]
                 sub = {k: v_[idx] for k, v_ in frames.items() if isinstance(v_, Tensor)}
-                alphas = pool.component_alphas(queries[idx])
-                pred = policy.decode(sub, alphas, pool.own_weights(skill, len(idx), device))
+                pred = policy.decode_prompt(sub, pool.own_prompt(queries[idx], skill))
                 valid = (~sub[ACTION_PAD]).to(pred.dtype).unsqueeze(-1)
                 l1 = ((pred - sub[ACTION]).abs() * valid).sum() / (valid.sum() * pred.shape[-1]).clamp_min(1)
                 optimizer.zero_grad()

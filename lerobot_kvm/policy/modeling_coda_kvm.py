@@ -283,8 +283,9 @@ class CodaKvmPolicy(PreTrainedPolicy):
         query = self.encode_query(self._tasks(batch, batch_size))
         own = skill_weights is None
         if own:
-            skill_weights = self.pool.own_weights(self.n_skills - 1, batch_size, query.device)
-        pred = self.decode(batch, self.pool.component_alphas(query), skill_weights)
+            pred = self.decode_prompt(batch, self.pool.own_prompt(query, self.n_skills - 1))
+        else:
+            pred = self.decode(batch, self.pool.component_alphas(query), skill_weights)
         target, valid = self._check_action(batch, pred.shape[0])
         err = (pred - target).abs() * valid.unsqueeze(-1)
         per_sample = err.sum(dim=(1, 2)) / (valid.sum(dim=1) * pred.shape[-1]).clamp_min(1)
@@ -511,7 +512,10 @@ class CodaKvmPolicy(PreTrainedPolicy):
     def decode(self, batch: dict[str, Any], alphas: Tensor, skill_weights: Tensor) -> Tensor:
         """Eq. 4: actions from the backbone prefixed by the fused prompt (component alphas [L, B, M], decision
         weights [B, S])."""
-        prompts = self.pool.prompt_from_alphas(alphas, skill_weights)
+        return self.decode_prompt(batch, self.pool.prompt_from_alphas(alphas, skill_weights))
+
+    def decode_prompt(self, batch: dict[str, Any], prompts: Tensor) -> Tensor:
+        """Actions from the backbone prefixed by a given prompt [L, B, Lp, D]."""
         images = [batch[key] for key in self.config.image_features]
         return self.backbone(images, batch[OBS_STATE], batch[self.config.context_key], prompts)
 

@@ -45,6 +45,21 @@ def test_alpha_matches_hand_computation() -> None:
     np.testing.assert_allclose(pool.skill_prompts(query).detach().numpy(), own, rtol=1e-5, atol=1e-6)
 
 
+def test_own_prompt_is_the_one_hot_fusion_from_the_skills_rows_alone() -> None:
+    pool = make_pool(3)
+    with torch.no_grad():
+        for task in pool.tasks[:3]:
+            task.keys.add_(0.3 * torch.randn_like(task.keys))
+            task.attn.add_(0.3 * torch.randn_like(task.attn))
+    query = torch.randn(4, 16)
+    for skill in range(3):
+        fused = pool.prompt_from_alphas(pool.component_alphas(query), pool.own_weights(skill, 4))
+        torch.testing.assert_close(pool.own_prompt(query, skill), fused, rtol=1e-6, atol=1e-7)
+    pool.own_prompt(query, 2).square().sum().backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in pool.tasks[2].parameters())
+    assert all(p.grad is None for task in pool.tasks[:2] for p in task.parameters())
+
+
 def test_relevance_is_how_close_the_query_is_to_each_skills_training_queries() -> None:
     pool = make_pool(3)
     a, b = torch.randn(2, 16)
