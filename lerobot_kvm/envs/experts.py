@@ -123,7 +123,8 @@ class PushExpert(Expert):
 
     The pusher's leading point is `ahead` m in front of the hand origin with the hand at `hand_z` and wrist `pitch`;
     it meets the body's back face (`half_depth` behind its origin) and carries it `distance` m. With `reach_first`
-    the hand stays up until it is behind the body (for a low push close to the table).
+    the hand stays up until it is behind the body (for a low push close to the table). The approach ends, and the push
+    at `speed` begins, `standoff` m behind the meeting point.
     """
 
     def __init__(
@@ -137,8 +138,10 @@ class PushExpert(Expert):
         hand_z: float,
         pitch: float = 0.0,
         reach_first: bool = False,
+        standoff: float = 0.03,
     ) -> None:
         self.body, self.half_depth, self.distance = body, half_depth, distance
+        self.standoff = standoff
         self.speed, self.ahead, self.hand_z, self.pitch, self.reach_first = speed, ahead, hand_z, pitch, reach_first
         self.phase = "approach"
         self.target: np.ndarray | None = None  # set from the hand's position on the first step
@@ -154,7 +157,7 @@ class PushExpert(Expert):
         if self.target is None:
             self.target = pos[:3].copy()
         if self.phase == "approach":
-            start = np.array([meet - 0.03, obj[1], self.hand_z])
+            start = np.array([meet - self.standoff, obj[1], self.hand_z])
             step = np.clip(start - self.target, -MOVE_STEP, MOVE_STEP)
             if self.reach_first and np.linalg.norm(start[:2] - self.target[:2]) > 0.01:
                 step[2] = max(step[2], 0.0)

@@ -55,3 +55,22 @@ def test_a_different_book_in_view_and_in_words():
     assert "paperback" in b.task_description and "hardcover" in a.task_description
     with pytest.raises(ValueError, match="no skill"):
         a.scenario.expert("throw")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_slow_push_runs_at_its_speed_for_ten_steps_before_it_meets_the_book(seed):
+    """The skill learned from the slow push meets the book at the push's speed only when the demonstration has
+    settled into that speed well before contact."""
+    env = KvmObsolescenceEnv(task=TASK, variant="shifted")
+    env.reset(seed=seed)
+    expert = env.scenario.expert("slow_push")
+    xs = []
+    for _ in range(env._max_episode_steps):
+        env.step(expert.act(env.physics))
+        xs.append(float(env.physics.sensors.arm_position(env.data)[0]))
+        if env.scenario.peak_force > 0.0:
+            break
+    assert env.scenario.peak_force > 0.0, "the pusher never met the book"
+    steps = np.diff(xs)[::-1]  # from the contact backwards
+    steady = int(np.argmax(np.abs(steps - 0.004) > 0.0005))  # steps at the push's 4 mm before contact
+    assert steady >= 10
