@@ -185,16 +185,13 @@ class KnowledgeValidityModule(nn.Module):
         active: Tensor,
         all_active: bool | None = None,
         corrections: tuple[Tensor, Tensor] | None = None,
-        suppressed: Tensor | None = None,
     ) -> tuple[Tensor, KvmStepTelemetry]:
         """Eq. 3's decision weights w [B, S] for the pool and the step's telemetry (Algorithm 1, lines 5-20).
 
         sensed [B, C] normalized context, query [B, D_q], alphas [B, S] the CL core's per-skill relevance, active
         [S] bool (not pruned), corrections: knowledge-gap skills (`CodaPromptPool.corrections`). Where the gate is
         closed every v is 1 and w is the relevance over the candidates; the gate-closed path costs E_c and the gate
-        test only. `telemetry.abstained` marks rows where every candidate is suppressed. `suppressed` [B, S] bool:
-        skills suppressed earlier in the same attempt; they stay invalid (v = 0) and their rows stay assessed, as
-        if the gate were open, whatever this step's context says.
+        test only. `telemetry.abstained` marks rows where every candidate is suppressed.
         """
         cfg = self.config
         self.gate.ensure_fresh(self.encoder, self.gate_memory)
@@ -213,9 +210,6 @@ class KnowledgeValidityModule(nn.Module):
             gate = None
         else:
             gate = self.gate_open(sigma2)
-        if suppressed is not None:
-            held = suppressed.any(-1)
-            gate = held if gate is None else gate | held
         if all_active is None:
             all_active = bool(active.all())
         candidate = candidates(alphas, active)
@@ -245,8 +239,6 @@ class KnowledgeValidityModule(nn.Module):
                 v = v.masked_fill(~assessed, 1.0)
                 invalid = invalid & assessed
         off = invalid if all_active else invalid | ~active.unsqueeze(0)
-        if suppressed is not None:
-            off = off | suppressed
         v = v.masked_fill(off, 0.0)
         if corrections is not None:
             v = torch.where(off, 0.0, correction_validity(v, corrections, alphas, cfg.tau_high, active))

@@ -60,11 +60,6 @@ class KvmStepTelemetry:
         return self._gate
 
     @property
-    def assessed(self) -> bool:
-        """The full assessment ran for some row (the gate open somewhere)."""
-        return self._gate is not None and bool(self._gate.any())
-
-    @property
     def energy(self) -> Tensor:
         if self._energy is None:
             self._energy = torch.full_like(self.alpha, float("nan"))

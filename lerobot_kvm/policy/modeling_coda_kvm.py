@@ -270,9 +270,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self._kvm_trace = KvmTrace()
         self._kvm_telemetry = None
         self._queued_interventions: Tensor | None = None
-        # [B, S] bool: skills the KVM suppressed earlier in this attempt; they stay suppressed until it ends (a
-        # context that looks routine again after a suppression is the valid skill's doing, not the culprit's).
-        self._suppressed: Tensor | None = None
         self._last_action = None
 
     def forward(
@@ -465,9 +462,6 @@ class CodaKvmPolicy(PreTrainedPolicy):
                 None,
             )
         n = self.n_skills
-        suppressed = self._suppressed
-        if suppressed is not None and suppressed.shape != relevance.shape:
-            suppressed = None  # another batch of environments: a new attempt
         weights, telemetry = self.kvm.assess(
             batch[self.config.context_key],
             query,
@@ -475,13 +469,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
             self.kvm.metabolism.active(n),
             self.kvm.metabolism.all_active(n),
             self.pool.corrections(),
-            suppressed,
         )
-        if suppressed is not None or telemetry.assessed:
-            now = telemetry.intervention
-            self._suppressed = now if suppressed is None else suppressed | now
-            if not bool(self._suppressed.any()):
-                self._suppressed = None
         return alphas, weights, telemetry
 
     def _infer(self, batch: dict[str, Any], skill_weights: Tensor | None) -> tuple[Tensor, KvmStepTelemetry | None]:

@@ -191,28 +191,9 @@ def test_with_the_gate_open_a_suppression_replans_within_one_step(make_policy, m
     policy.kvm.set_gate_override("open")
     policy.select_action(batch)  # a new chunk, assessed with the gate open
     assert len(policy._action_queue) == 1 and policy.kvm_telemetry.intervention.any()
-
-
-def test_a_suppression_holds_for_the_rest_of_the_attempt(make_policy, make_batch, make_kvm_config) -> None:
-    """Once suppressed, a skill stays out of force until the attempt ends, even where its validity returns and the
-    gate would close: the context looks routine again because the valid skill acts, not because the culprit may
-    come back."""
-    policy = two_skill_policy(make_policy, kvm=make_kvm_config(force_validity=1.0))
-    batch = make_batch(policy.config, batch_size=1, with_action=False)
-    policy.kvm.set_gate_override("open")
+    policy.config.kvm.force_validity = 1.0  # valid again: the next step replans at once
     policy.select_action(batch)
-    assert not policy.kvm_telemetry.intervention.any()
-    policy.config.kvm.force_validity = 0.0
-    policy.select_action(batch)
-    assert policy.kvm_telemetry.intervention.all() and policy.kvm_telemetry.abstained.all()
-    policy.config.kvm.force_validity = 1.0  # valid again ...
-    policy.kvm.set_gate_override("closed")  # ... and the gate shut: the attempt keeps its suppressions
-    for _ in range(6):
-        policy.select_action(batch)
-        assert policy.kvm_telemetry.intervention.all() and policy.kvm_telemetry.gate.all()
-    policy.reset()  # a new attempt starts with none
-    policy.select_action(batch)
-    assert not policy.kvm_telemetry.intervention.any() and not policy.kvm_telemetry.gate.any()
+    assert len(policy._action_queue) == 1 and not policy.kvm_telemetry.intervention.any()
 
 
 def test_one_rows_replan_leaves_the_other_rows_chunks(make_policy, make_batch, make_kvm_config) -> None:
@@ -424,7 +405,6 @@ def test_the_novelty_detector_suppresses_every_skill_where_the_gate_opens(make_p
     policy.predict_action_chunk(batch)
     tele = policy.kvm_telemetry
     assert (tele.validity < TAU_V).all() and tele.abstained.all()  # novel: nothing is trusted, the policy holds
-    policy.reset()  # a new attempt: the suppressions of the last one are gone
     policy.kvm.set_gate_override("closed")
     chunk = policy.predict_action_chunk(batch)
     assert not policy.kvm_telemetry.abstained.any() and torch.equal(chunk, core_chunk(policy, batch))
