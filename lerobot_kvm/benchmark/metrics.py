@@ -10,6 +10,8 @@ benign-novelty ("control") episodes, where every suppression is a false interven
 * abstention_rate: attempts ending in a safe abstention (neither success nor catastrophe, the policy held because
   every candidate skill was invalid) / challenge attempts.
 * per_category: solved challenges per scenario category as "k/n (p%)".
+* per_scenario: per scenario, solved challenges and catastrophic attempts as "k/n": where the oracle rows and the
+  method part, this says which scenario bounds the row.
 * prior_retention: successful prior-variant controls / prior-variant controls.
 * false_intervention_rate: controls with at least one intervention / controls (validity methods only).
 * gate_activation_rate: gate-open steps / steps of prior-variant controls (routine episodes).
@@ -75,6 +77,14 @@ def _solved(chall: list[dict[str, Any]]) -> str:
     return format_kn(sum(c["solved"] for c in chall), len(chall))
 
 
+def _scenario_counts(chall: list[dict[str, Any]]) -> dict[str, str]:
+    attempts = [a for c in chall for a in c["attempts"]]
+    return {
+        "solved": f"{sum(c['solved'] for c in chall)}/{len(chall)}",
+        "catastrophes": f"{sum(a['outcome'] == 'catastrophe' for a in attempts)}/{len(attempts)}",
+    }
+
+
 def detection_leads(records: Iterable[Record]) -> list[int]:
     """Reference catastrophe step - first intervention step, for first attempts that have both."""
     return [
@@ -95,6 +105,7 @@ def summarize(records: Sequence[Record], probes: Sequence[Record] = (), validity
     controls = [r for r in records if r["kind"] in ("prior", "control")]
     solved = sum(c["solved"] for c in chall)
     categories = sorted({c["category"] for c in chall})
+    scenarios = list(dict.fromkeys(c["scenario"] for c in chall))
     out: dict[str, Any] = {
         "challenges": len(chall),
         "success_rate": _rate(solved, len(chall)),
@@ -103,6 +114,7 @@ def summarize(records: Sequence[Record], probes: Sequence[Record] = (), validity
         "catastrophic_failure_rate": _rate(sum(a["outcome"] == "catastrophe" for a in attempts), len(attempts)),
         "abstention_rate": _rate(sum(a["outcome"] == "abstention" for a in attempts), len(attempts)),
         "per_category": {cat: _solved([c for c in chall if c["category"] == cat]) for cat in categories},
+        "per_scenario": {sc: _scenario_counts([c for c in chall if c["scenario"] == sc]) for sc in scenarios},
         "prior_retention": _rate(sum(r["outcome"] == "success" for r in prior), len(prior)),
         "control_success_rate": _rate(
             sum(r["outcome"] == "success" for r in controls if r["kind"] == "control"),

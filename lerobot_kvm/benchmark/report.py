@@ -46,6 +46,27 @@ def category_table(results: dict[str, Any]) -> list[str]:
     return _table(header, rows) + [f"Categories: {legend}. R1-R3: passes (knowledge kept across passes).", ""]
 
 
+def scenario_table(results: dict[str, Any]) -> list[str]:
+    """Solved challenges and catastrophic attempts per scenario, every pass and run together."""
+    scenarios = [
+        s
+        for s in results["config"]["scenarios"]
+        if any(s in m["overall"].get("per_scenario", {}) for m in results["methods"].values())
+    ]
+    rows = []
+    for name, res in results["methods"].items():
+        per = res["overall"].get("per_scenario", {})
+        rows.append(
+            [_label(name), *(f"{per[s]['solved']} · {per[s]['catastrophes']}" if s in per else "-" for s in scenarios)]
+        )
+    return _table(["method", *scenarios], rows) + [
+        "Cells: challenges solved · attempts ending in a catastrophe. `oracle_skill` bounds a scenario by its safe "
+        "skill's own quality, `oracle_switch` by the rescue window a detector of the shift gets; a method below both "
+        "falls short in its detection or its switch.",
+        "",
+    ]
+
+
 def _with_interval(res: dict[str, Any], key: str) -> str:
     """A rate in percent and, where measured, its 95 % interval: "33.3 [16.1, 50.0]"."""
     interval = res.get("intervals", {}).get(key)
@@ -259,6 +280,9 @@ def markdown(results: dict[str, Any], plots: list[Path], account: Sequence[str] 
         "",
         *feedback_lines(results),
         *difference_table(results),
+        "## Challenges per scenario",
+        "",
+        *scenario_table(results),
         "## Gate and validity statistics (Table 10)",
         "",
         *gate_table(results),

@@ -71,6 +71,10 @@ def test_summary_metrics_match_hand_counts() -> None:
     assert s["first_attempt_success_rate"] == pytest.approx(1 / 3)
     assert s["catastrophic_failure_rate"] == pytest.approx(1 / 5)  # 5 challenge attempts, 1 catastrophe
     assert s["per_category"] == {"A": "1/2 (50.0%)", "B": "1/1 (100.0%)"}
+    assert s["per_scenario"] == {
+        "egg": {"solved": "1/2", "catastrophes": "1/4"},
+        "drawer": {"solved": "1/1", "catastrophes": "0/1"},
+    }
     assert s["prior_retention"] == pytest.approx(1 / 2)
     assert s["control_success_rate"] == 1.0
     assert s["false_intervention_rate"] == pytest.approx(1 / 3)  # 3 controls, the benign one intervened

@@ -1,6 +1,7 @@
 """The benchmark report's tables from measured values."""
 
-from lerobot_kvm.benchmark.report import difference_table, feedback_lines, overhead_table, time_lines
+from lerobot_kvm.benchmark.metrics import summarize
+from lerobot_kvm.benchmark.report import difference_table, feedback_lines, overhead_table, scenario_table, time_lines
 
 MEASURED = {
     "model_call_ms": {"off": 4.0, "closed": 4.3, "open": 5.0},
@@ -77,3 +78,37 @@ def test_the_time_line_keeps_the_pool_training_a_reused_pool_recorded() -> None:
     assert "on 2 worker(s), 20.0 min of unit time of which feedback training 15.0" in line
     del breakdown["pool_training_min"]  # results written before the pool's training was kept
     assert time_lines(breakdown)[0].startswith("Time: pool 0.1 min; (method, run)")
+
+
+def test_the_scenario_table_shows_where_a_method_falls_short_of_the_privileged_rows() -> None:
+    def challenge(method: str, scenario: str, *outcomes: str) -> list[dict]:
+        return [
+            {
+                "method": method,
+                "run": 0,
+                "pass": 1,
+                "scenario": scenario,
+                "category": "B",
+                "kind": "challenge",
+                "attempt": k + 1,
+                "outcome": o,
+                "steps": 10,
+                "gate_steps": 0,
+                "intervention_steps": 0,
+            }
+            for k, o in enumerate(outcomes)
+        ]
+
+    runs = {
+        "coda_kvm": challenge("coda_kvm", "drawer", "abstention", "catastrophe")
+        + challenge("coda_kvm", "egg", "success"),
+        "oracle_switch": challenge("oracle_switch", "drawer", "success") + challenge("oracle_switch", "egg", "success"),
+    }
+    results = {
+        "config": {"scenarios": ["potato", "drawer", "egg"]},
+        "methods": {m: {"overall": summarize(r, validity=False)} for m, r in runs.items()},
+    }
+    lines = scenario_table(results)
+    assert lines[0] == "| method | drawer | egg |"  # the config's order, scenarios never met left out
+    assert lines[2] == "| coda_kvm | 0/1 · 1/2 | 1/1 · 0/1 |"
+    assert lines[3] == "| oracle_switch (privileged) | 1/1 · 0/1 | 1/1 · 0/1 |"
