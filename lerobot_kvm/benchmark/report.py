@@ -48,14 +48,11 @@ def category_table(results: dict[str, Any]) -> list[str]:
 
 def scenario_table(results: dict[str, Any]) -> list[str]:
     """Solved challenges and catastrophic attempts per scenario, every pass and run together."""
-    scenarios = [
-        s
-        for s in results["config"]["scenarios"]
-        if any(s in m["overall"].get("per_scenario", {}) for m in results["methods"].values())
-    ]
+    met = {s for m in results["methods"].values() for s in m["overall"]["per_scenario"]}
+    scenarios = [s for s in results["config"]["scenarios"] if s in met]
     rows = []
     for name, res in results["methods"].items():
-        per = res["overall"].get("per_scenario", {})
+        per = res["overall"]["per_scenario"]
         rows.append(
             [_label(name), *(f"{per[s]['solved']} · {per[s]['catastrophes']}" if s in per else "-" for s in scenarios)]
         )
