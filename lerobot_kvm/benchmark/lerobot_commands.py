@@ -79,9 +79,14 @@ def run_logged(
 
 def _child_of_pipeline() -> None:
     """In the child, before it runs the command: its own session (so it can be stopped with its whole group), and
-    on Linux a SIGTERM when the pipeline dies, however it dies (SIGKILL included), so that no trainer outlives it
-    and races the next run into the same output directory."""
+    the parent-death signal (`die_with_parent`)."""
     os.setsid()
+    die_with_parent()
+
+
+def die_with_parent() -> None:
+    """On Linux, a SIGTERM to the calling process when its parent dies, however it dies (SIGKILL included), so that
+    no trainer or benchmark worker outlives its pipeline and races the next run into the same output directory."""
     if sys.platform.startswith("linux"):
         import ctypes
 

@@ -30,8 +30,7 @@ import multiprocessing
 import os
 import shutil
 import time
-from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -52,6 +51,7 @@ from ..kvm.supervisor import FEEDBACK_LR
 from ..policy.feedback import FOCUSED_LR, skill_by_name
 from .continual import ContinualRun, SequenceConfig, training_minutes
 from .estimate import Estimate, estimate
+from .lerobot_commands import die_with_parent
 from .lock import hold
 from .resume import check_settings
 
@@ -278,10 +278,23 @@ def finetune(policy: Any, demo: dict[str, Any], steps: int, lr: float, batch_siz
 
 def _run_unit(
     config: BenchmarkConfig, out: Path, device: str, threads: int, method: str, run: int, checkpoint: Path
-) -> dict[str, Any]:
+) -> tuple[tuple[str, int], dict[str, Any]]:
     """A worker process's (method, run) unit: the same as `Benchmark.finish_run` in the parent, on `threads`."""
     torch.set_num_threads(threads)
-    return Benchmark(config, out, progress=False, device=device).finish_run(method, run, checkpoint)
+    return (method, run), Benchmark(config, out, progress=False, device=device).finish_run(method, run, checkpoint)
+
+
+def in_workers(fn: Callable[..., Any], jobs: Sequence[tuple], workers: int) -> Iterator[Any]:
+    """fn(*job) for every job in `workers` spawned processes (no torch or simulator state inherited), each result as
+    it completes. The workers end with this process however it ends: leaving the iteration (an error, a SIGTERM's
+    exit) terminates them, and each has the parent-death signal for a SIGKILL. A worker left running would go on
+    writing into the output directory that the next run, its lock released, works in."""
+    with multiprocessing.get_context("spawn").Pool(workers, initializer=die_with_parent) as pool:
+        yield from pool.imap_unordered(_call, [(fn, *job) for job in jobs])
+
+
+def _call(job: tuple) -> Any:
+    return job[0](*job[1:])
 
 
 def begin_feedback_skill(policy: Any, name: str) -> dict[str, Any]:
@@ -723,16 +736,11 @@ class Benchmark:
                 done[method, run] = self.finish_run(method, run, checkpoint, bar)
         else:
             threads = max(1, (os.cpu_count() or 1) // self.workers)
-            context = multiprocessing.get_context("spawn")  # no torch or simulator state inherited by a worker
-            with ProcessPoolExecutor(min(self.workers, len(pending)), mp_context=context) as pool:
-                futures = {
-                    pool.submit(_run_unit, self.config, self.out, self.device, threads, *unit): unit[:2]
-                    for unit in pending
-                }
-                for future in as_completed(futures):
-                    done[futures[future]] = future.result()
-                    bar.set_description(f"{futures[future][0]} run {futures[future][1] + 1} done")
-                    bar.update(per_unit)
+            jobs = [(self.config, self.out, self.device, threads, *unit) for unit in pending]
+            for (method, run), result in in_workers(_run_unit, jobs, min(self.workers, len(pending))):
+                done[method, run] = result
+                bar.set_description(f"{method} run {run + 1} done")
+                bar.update(per_unit)
         return {method: [done[method, run] for run in range(cfg.runs)] for method in cfg.methods}
 
     # ------------------------------------------------------------------ everything

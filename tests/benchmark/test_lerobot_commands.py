@@ -113,3 +113,38 @@ def test_a_killed_pipeline_stops_the_command_it_started(tmp_path, stop):
     while _alive(pid) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not _alive(pid)
+
+
+def _workers_of(pid: int) -> list[int]:
+    """The spawned multiprocessing workers among a process's children (Linux /proc)."""
+    children = [int(c) for t in Path(f"/proc/{pid}/task").iterdir() for c in (t / "children").read_text().split()]
+    return [c for c in children if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+
+
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGKILL])
+def test_a_killed_benchmark_stops_its_worker_processes(stop):
+    """The benchmark's (method, run) workers end with it: a SIGTERM's exit terminates them, a SIGKILL reaches them
+    through their parent-death signal. A worker left running would write into the output directory of the next run."""
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the parent-death signal and /proc are Linux's")
+    pipeline = (
+        "import time\n"
+        "from lerobot_kvm.cli.main import exit_on_sigterm\n"
+        "from lerobot_kvm.benchmark.protocol import in_workers\n"
+        "exit_on_sigterm()\n"
+        "for _ in in_workers(time.sleep, [(600,)], 1):\n"
+        "    pass\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", pipeline])
+    deadline = time.monotonic() + 120
+    while not _workers_of(proc.pid):
+        assert proc.poll() is None and time.monotonic() < deadline
+        time.sleep(0.1)
+    time.sleep(0.5)  # the worker has run its initializer and taken the job
+    (worker,) = _workers_of(proc.pid)
+    proc.send_signal(stop)
+    proc.wait(timeout=60)
+    deadline = time.monotonic() + 30
+    while _alive(worker) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _alive(worker)
