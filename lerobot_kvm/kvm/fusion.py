@@ -10,9 +10,10 @@ relevances alone. When every candidate is suppressed there is nothing valid to f
 (`abstains`).
 
 A skill the KVM created for a knowledge gap *corrects* another skill: it is out of force where the gate is closed
-(inside the safe experience the corrected skill still holds) and, where the gate is open, valid at least as much as
-the skill it corrects is not (`correction_validity`): the correction takes over exactly where the obsolete
-knowledge is suppressed, however narrow the few seed contexts it was learned from.
+(inside the safe experience the corrected skill still holds) and, where the gate is open and the task relies on the
+skill it corrects, exactly as valid as that skill is not (`correction_validity`): the correction takes over where
+the obsolete knowledge is suppressed, however narrow the few seed contexts it was learned from, and stays out of a
+context where that knowledge still holds (a prompt mixed from the two is neither strategy).
 """
 
 import torch
@@ -58,25 +59,38 @@ def correction_validity(
     necessity: float = 0.8,
     active: Tensor | None = None,
 ) -> Tensor:
-    """v [B, S] with each correcting skill i raised to max(v_i, 1 - v_target(i)) in the rows where its target is
-    necessary: the target's relevance alpha [B, S] is at least `necessity` times the largest relevance of a skill
-    that corrects nothing (the target is the knowledge the task relies on, not a bystander that every novel
-    context makes invalid). `corrections` = (mask [S] bool, target [S] index) from
+    """v [B, S] with each correcting skill i set to 1 - v_target(i) in the rows where its target is necessary: the
+    target's relevance alpha [B, S] is at least `necessity` times the largest relevance of a skill that corrects
+    nothing (the target is the knowledge the task relies on, not a bystander that every novel context makes
+    invalid). Elsewhere a correction keeps its own v. `corrections` = (mask [S] bool, target [S] index) from
     `CodaPromptPool.corrections` (None: no correcting skill, v unchanged).
 
-    Two refinements keep corrections where they were made for. When one skill has several corrections (each
-    made in another context), only the one with the highest own validity in a row inherits there (ties go to
-    the oldest): the others' strategies were learned elsewhere. A pruned target (`active` [S] bool false) passes
-    nothing on: its v = 0 is no judgement of the context."""
+    The correction replaces its own v there rather than raising it: where the target still holds (v_target near 1)
+    a correction with a high own v would otherwise share the fused prompt with it, and on the default pool the
+    drawer's correction carried the prior variant's control steps without any suppression (docs/measurements.md,
+    corrections in force only where the target is not). When one skill has several corrections (each made in
+    another context), only the one with the highest own validity in a row takes over there (ties go to the
+    oldest); the others weigh nothing there. A pruned target (`active` [S] bool false) passes nothing on: its v = 0
+    is no judgement of the context."""
     if corrections is None:
         return v
+    mask, target = corrections
+    inherited = torch.where(_chosen_sibling(v, mask, target), 1 - v[:, target], torch.zeros_like(v))
+    return torch.where(mirrored(corrections, alphas, necessity, active), inherited, v)
+
+
+def mirrored(
+    corrections: tuple[Tensor, Tensor], alphas: Tensor, necessity: float = 0.8, active: Tensor | None = None
+) -> Tensor:
+    """[B, S] bool: the correcting skills whose v mirrors the skill they correct in these rows (`correction_validity`:
+    the target is necessary). Such a v is no judgement of the correction itself, so a correction held out where its
+    target still holds is no suppression (`KvmStepTelemetry.intervention`)."""
     mask, target = corrections
     mass = alphas.abs()
     necessary = mass[:, target] >= necessity * plain_scale(mass, mask).unsqueeze(-1)
     if active is not None:
         necessary &= active[target].unsqueeze(0)
-    inherited = torch.where(necessary & _chosen_sibling(v, mask, target), 1 - v[:, target], torch.zeros_like(v))
-    return torch.where(mask.unsqueeze(0), torch.maximum(v, inherited), v)
+    return mask.unsqueeze(0) & necessary
 
 
 def _chosen_sibling(v: Tensor, mask: Tensor, target: Tensor) -> Tensor:

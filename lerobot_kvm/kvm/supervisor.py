@@ -19,7 +19,7 @@ from .configuration import KvmConfig
 from .context_encoder import ContextEncoder
 from .energy import ENERGY_MAX, GAMMA, L0, EnergyModel, JointFeature, RiskClassifier, SkillScorer, validity
 from .experience import SafeExperience
-from .fusion import candidates, correction_validity, decision_weights
+from .fusion import candidates, correction_validity, decision_weights, mirrored
 from .gate import SmartGate
 from .losses import (
     BCE_WEIGHT,
@@ -240,12 +240,16 @@ class KnowledgeValidityModule(nn.Module):
                 invalid = invalid & assessed
         off = invalid if all_active else invalid | ~active.unsqueeze(0)
         v = v.masked_fill(off, 0.0)
+        mirror = None
         if corrections is not None:
             v = torch.where(off, 0.0, correction_validity(v, corrections, alphas, cfg.tau_high, active))
+            mirror = mirrored(corrections, alphas, cfg.tau_high, active) & ~off
         weights = decision_weights(v, alphas, candidate)
         if corrections is not None:
             weights = weights.masked_fill(corrections[0].unsqueeze(0) & ~gate.unsqueeze(-1), 0.0)
-        telemetry = KvmStepTelemetry(energy=energy, validity=v, skill_weight=weights, invalid=invalid, **common)
+        telemetry = KvmStepTelemetry(
+            energy=energy, validity=v, skill_weight=weights, invalid=invalid, mirrored=mirror, **common
+        )
         return weights, telemetry
 
     # ----------------------------------------------------------------- learning

@@ -24,7 +24,8 @@ class KvmStepTelemetry:
     E_theta(h_i) (or the classifier's energy-equivalent), NaN where not assessed; validity [B, S]: v_i (1 where the
     gate was closed, 0 where invalid or pruned); skill_weight [B, S]: eq. 3's decision weight w_i given to the pool
     (see kvm.fusion); invalid [B, S] bool: non-finite context, code or energy -> v_i = 0 (fail-safe); active [S]
-    bool: skills not pruned.
+    bool: skills not pruned; mirrored [B, S] bool: corrections whose v mirrors the skill they correct
+    (`fusion.mirrored`), None where none does.
     """
 
     PER_ROW = ("sigma2", "gate", "alpha", "candidate", "energy", "validity", "skill_weight", "invalid")
@@ -41,6 +42,7 @@ class KvmStepTelemetry:
         skill_weight: Tensor | None = None,
         invalid: Tensor | None = None,
         candidate: Tensor | None = None,
+        mirrored: Tensor | None = None,
     ) -> None:
         self.sigma2 = sigma2
         self.tau = tau
@@ -52,6 +54,7 @@ class KvmStepTelemetry:
         self._validity = validity
         self._skill_weight = skill_weight
         self._invalid = invalid
+        self.mirrored = mirrored
 
     @property
     def gate(self) -> Tensor:
@@ -98,8 +101,10 @@ class KvmStepTelemetry:
 
     @property
     def intervention(self) -> Tensor:
-        """[B, S] bool: a candidate suppressed (v_i < tau_v)."""
-        return self.candidate & (self.validity < TAU_V)
+        """[B, S] bool: a candidate suppressed (v_i < tau_v); a correction held out where the skill it corrects
+        holds is not (its v mirrors that skill's)."""
+        suppressed = self.candidate & (self.validity < TAU_V)
+        return suppressed if self.mirrored is None else suppressed & ~self.mirrored
 
     @property
     def abstained(self) -> Tensor:
@@ -140,6 +145,7 @@ class KvmStepTelemetry:
         return KvmStepTelemetry(
             tau=self.tau,
             active=self.active,
+            mirrored=None if self.mirrored is None else self.mirrored[b : b + 1],
             **{k: v[b : b + 1] for k, v in values.items()},
         )
 

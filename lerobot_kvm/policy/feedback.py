@@ -11,16 +11,18 @@ after an attempt:
   which the attempt left the culprit's safe experience for good, `SafeExperience.departed`) form a low-confidence
   hypothesis, or add evidence to a matching one. The failure context paired with the culprit becomes provisional
   h_fail negatives; a corrective demonstration gives positives for the skill that demonstrates the safe strategy
-  (its name in `demonstration["skill"]`, else the alternative the removals agree on, else the most relevant
-  alternative, each among the skills the KVM left in force), in its own contexts and in the failure context, and,
-  where its contexts lie outside the culprit's safe experience or leave it for good (`SafeExperience`), more
+  (its name in `demonstration["skill"]`, else the alternative whose own prompt reproduces it, `explaining_skill`,
+  else the alternative the removals agree on, else the most relevant alternative, each among the skills the KVM
+  left in force), in its own contexts and in the failure context; the alternatives it refutes get negatives there,
+  and, where its contexts lie outside the culprit's safe experience or leave it for good (`SafeExperience`), more
   negatives for the culprit: the demonstration ran where the culprit failed, and once the shift shows, its contexts
   are what the culprit would meet there. Then a fixed budget of gradient steps updates the KVM, replaying the safe
   memory so that what was safe stays safe (the safe samples the update judges invalid are replayed at every step
   after, `kvm.feedback_hard_safe_replay`). This first update is what lowers v(culprit, failure context) already on
-  the next attempt; the hypothesis governs confirmation. With a demonstration, the knowledge gap is tested at once
-  (`kvm.gap_on_failure`): if every alternative to the culprit is weak in the failure context, suppression alone
-  would leave no strategy, so a new *gated* skill that corrects the culprit (`fusion.correction_validity`) is begun
+  the next attempt; the hypothesis governs confirmation. With a demonstration no skill performs, the knowledge gap
+  is tested at once (`kvm.gap_on_failure`): if every alternative to the culprit is weak in the failure context,
+  suppression alone would leave no strategy, so a new *gated* skill that corrects the culprit
+  (`fusion.correction_validity`) is begun
   and seeded from the demonstration: KVM positives from the demonstrated and the failed contexts; the feedback's
   gradient budget is then split between the KVM's update and focused steps on the new skill's parameters only
   (`split_budget`: the budget counts all the mechanism trains). Later failures of the same hypothesis, or blamed on
@@ -35,7 +37,7 @@ after an attempt:
   skill is created (an untrained one would only be noise).
 """
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -52,7 +54,7 @@ from ..kvm.attribution import (
     normalised_relevance,
 )
 from ..kvm.experience import SafeExperience
-from ..kvm.fusion import TAU_V, candidates, decision_weights, plain_scale
+from ..kvm.fusion import candidates, decision_weights, plain_scale
 from ..kvm.supervisor import KnowledgeValidityModule
 from ..kvm.telemetry import KvmTrace
 from .coda_prompt import CodaPromptPool, Skill
@@ -67,6 +69,11 @@ KNOWN_SAFE_QUANTILE = 0.95
 # action error on the corrective demonstration by more than this share, and by that much more than removing the
 # largest share does
 ATTRIBUTION_MARGIN = 0.1
+# A skill whose own prompt reproduces a corrective demonstration at most this share of the culprit's own action
+# error performs the demonstrated strategy (no knowledge gap). On the default pool the safe skill's share is
+# 0.03-0.21 and no other skill's is below 0.4 on its scenario (docs/measurements.md, the skill that performs the
+# demonstration).
+EXPLAIN_RATIO = 0.5
 FOCUSED_LR = 3e-3  # App. D focused fine-tuning: Adam step size on the new skill's parameters
 
 
@@ -181,29 +188,32 @@ def _cat_frames(parts: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------------------- counterfactual attribution
-@torch.no_grad()
-def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], proposed: Tensor) -> tuple[float, Tensor]:
-    """The policy's action error on demonstration frames with every active skill in force (eq. 3 with every v = 1,
-    before the KVM's re-weighting), and [S] the error with each candidate taken out of the fusion (inf elsewhere).
-
-    The error is the mean squared error of the predicted chunks against the demonstrated ones (normalized
-    actions, padding excluded)."""
-    training = policy.training
+def _action_error(policy: FeedbackPolicy, frames: dict[str, Any]) -> Callable[[Tensor], float]:
+    """The policy's action error on demonstration frames under given skill weights [T, S]: the mean squared error
+    of the predicted chunks against the demonstrated ones (normalized actions, padding excluded)."""
     device = policy.query_fingerprint.device
-    keys = _observation_keys(policy)
-    batch: dict[str, Any] = {k: frames[k].to(device) for k in keys}
+    batch: dict[str, Any] = {k: frames[k].to(device) for k in _observation_keys(policy)}
     batch["task"] = frames["task"]
     target, pad = frames[ACTION].to(device), frames[ACTION_PAD].to(device)
     kept = (~pad).sum(-1).clamp_min(1)
-    relevance = policy.pool.skill_relevance(policy.encode_query(frames["task"])).to(target.dtype)
-    active = policy.kvm_active_skills()
-    base = decision_weights(torch.ones_like(relevance), relevance, candidates(relevance, active))
 
     def error(weights: Tensor) -> float:
         chunk = policy.predict_action_chunk(batch, skill_weights=weights)
         per_step = (chunk - target).pow(2).mean(-1).masked_fill(pad, 0.0)
         return float((per_step.sum(-1) / kept).mean())
 
+    return error
+
+
+@torch.no_grad()
+def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], proposed: Tensor) -> tuple[float, Tensor]:
+    """The policy's action error on demonstration frames with every active skill in force (eq. 3 with every v = 1,
+    before the KVM's re-weighting), and [S] the error with each candidate taken out of the fusion (inf elsewhere)."""
+    training = policy.training
+    device = policy.query_fingerprint.device
+    error = _action_error(policy, frames)
+    relevance = policy.pool.skill_relevance(policy.encode_query(frames["task"])).to(device)
+    base = decision_weights(torch.ones_like(relevance), relevance, candidates(relevance, policy.kvm_active_skills()))
     full = error(base)
     without = torch.full((base.shape[1],), float("inf"), device=device)
     for i in torch.nonzero(proposed).flatten().tolist():
@@ -212,6 +222,41 @@ def removal_errors(policy: FeedbackPolicy, frames: dict[str, Any], proposed: Ten
         without[i] = error(weights)
     policy.train(training)
     return full, without
+
+
+@torch.no_grad()
+def alone_errors(policy: FeedbackPolicy, frames: dict[str, Any], skills: Tensor) -> Tensor:
+    """[S] each skill's action error on demonstration frames with its own prompt alone (inf for the skills not in
+    `skills` [S] bool): which skill performs the demonstrated strategy, whatever its relevance."""
+    training = policy.training
+    device = policy.query_fingerprint.device
+    error = _action_error(policy, frames)
+    errors = torch.full((skills.shape[0],), float("inf"), device=device)
+    for i in torch.nonzero(skills).flatten().tolist():
+        errors[i] = error(policy.pool.own_weights(i, len(frames["task"]), device))
+    policy.train(training)
+    return errors
+
+
+def explaining_skill(
+    policy: FeedbackPolicy, frames: dict[str, Any], culprit: int, alternatives: Tensor
+) -> tuple[int | None, Tensor]:
+    """(the alternative whose own prompt reproduces the demonstration best, if its error is at most `EXPLAIN_RATIO`
+    of the culprit's own: the pool already holds the demonstrated strategy; [S] bool the alternatives refuted: with
+    an explaining skill, those whose error exceeds its own by more than 1 / `EXPLAIN_RATIO`, which show another
+    strategy where the demonstrated one is needed). `alternatives` [S] bool: the skills that could take over."""
+    alternatives = alternatives.clone()
+    alternatives[culprit] = False
+    refuted = torch.zeros_like(alternatives)
+    if not bool(alternatives.any()):
+        return None, refuted
+    with_culprit = alternatives.clone()
+    with_culprit[culprit] = True
+    errors = alone_errors(policy, frames, with_culprit).to(alternatives.device)
+    best = int(errors.masked_fill(~alternatives, float("inf")).argmin())
+    if float(errors[best]) > EXPLAIN_RATIO * float(errors[culprit]):
+        return None, refuted
+    return best, alternatives & (errors * EXPLAIN_RATIO > errors[best])
 
 
 def _attribute(
@@ -287,21 +332,19 @@ def focused_finetune(
 
 
 # ---------------------------------------------------------------------------- feedback
-def _stack_used(trace: KvmTrace, n_skills: int) -> tuple[Tensor, Tensor, Tensor]:
-    """(validity, decision weights, intervention) per step [T, S] as they were in force during the attempt (weights
-    NaN at steps the KVM did not assess)."""
+def _stack_used(trace: KvmTrace, n_skills: int) -> tuple[Tensor, Tensor]:
+    """(decision weights, intervention) per step [T, S] as they were in force during the attempt (weights NaN at
+    steps the KVM did not assess)."""
     t_len = len(trace)
-    v = torch.ones(t_len, n_skills)
     w = torch.full((t_len, n_skills), float("nan"))
     inter = torch.zeros(t_len, n_skills, dtype=torch.bool)
     for t, tele in enumerate(trace.telemetry):
         if tele is None:
             continue
-        s = min(n_skills, tele.validity.shape[-1])
-        v[t, :s] = tele.validity[0, :s].cpu()
+        s = min(n_skills, tele.skill_weight.shape[-1])
         w[t, :s] = tele.skill_weight[0, :s].cpu()
         inter[t, :s] = tele.intervention[0, :s].cpu()
-    return v, w, inter
+    return w, inter
 
 
 def relied_on(weights: Tensor, relevance: Tensor, intervention: Tensor) -> Tensor:
@@ -373,11 +416,11 @@ def apply_feedback(
         alphas = policy.pool.skill_relevance(query)
         mu, sigma2, _ = kvm.encode(c_raw)
         tau = kvm.threshold()
-    v_used, w_used, _ = _stack_used(trace, n_skills)
-    v_used, w_used = v_used.to(device), w_used.to(device)
+    w_used, held = _stack_used(trace, n_skills)
+    w_used = w_used.to(device)
     relevance = normalised_relevance(alphas, active)
     candidate = candidates(alphas, active)
-    intervention = candidate & (v_used < TAU_V)
+    intervention = candidate & held.to(device)
     share = torch.where(torch.isnan(w_used), alphas, w_used)
     # Only skills the KVM left in force could have acted: one it suppressed throughout (another scenario's skill) is
     # neither the culprit nor the skill the demonstration shows (docs/measurements.md, the culprit is a skill that
@@ -437,6 +480,7 @@ class _Failure:
     permanent: bool  # the hypothesis is confirmed: its negatives are permanent
     experience: SafeExperience  # the culprit's
     negatives: list[Tensor]  # contexts that become h_fail negatives for the culprit
+    refuted: list[tuple[Tensor, Tensor]] = field(default_factory=list)  # (contexts, skills): other skills' negatives
     positives: list[tuple[Tensor, Tensor]] = field(default_factory=list)  # (contexts, skills) learned safe
     demo_skill: int | None = None
     gap: dict[str, Any] | None = None  # the gap skill the demonstration seeds
@@ -481,6 +525,11 @@ def _learn_from_failure(
     kvm_steps, skill_steps = split_budget(attempt.gradient_steps, failure.gap is not None)
     fails = torch.cat(failure.negatives)
     new_fail = (fails, torch.full((len(fails),), culprit, device=c_raw.device))
+    if failure.refuted:
+        new_fail = (
+            torch.cat([fails, *(c for c, _ in failure.refuted)]),
+            torch.cat([new_fail[1], *(k for _, k in failure.refuted)]),
+        )
     if failure.positives:
         new_safe = (torch.cat([c for c, _ in failure.positives]), torch.cat([s for _, s in failure.positives]))
     else:
@@ -498,6 +547,7 @@ def _learn_from_failure(
         demo_negative_steps=failure.demo_negative_steps,
         positives_added=len(new_safe[0]),
         demo_skill=failure.demo_skill,
+        refuted=[int(k[0]) for _, k in failure.refuted],
         suppressed_at_failure=suppressed,
         kvm_metrics=metrics,
     )
@@ -519,6 +569,9 @@ def _learn_from_demonstration(
     culprit = failure.culprit
     device = attempt.c_raw.device
     named = skill_by_name(policy, demonstration.get("skill"))
+    refuted = torch.zeros_like(attempt.active)
+    if named is None:  # the pool's skill that performs the demonstration alone
+        named, refuted = explaining_skill(policy, frames, culprit, attempt.active & attempt.in_force)
     if cfg.gap_on_failure and attempt.gradient_steps and named is None:  # a demonstrated skill the pool has is no gap
         relevance = attempt.relevance[failure.context]
         failure.gap = _gap_skill(policy, failure.hypothesis_id, culprit, relevance, attempt.active, attempt.task)
@@ -544,6 +597,13 @@ def _learn_from_demonstration(
         skills = torch.full((len(seen),), failure.demo_skill)
         kvm.add_safe(seen, skills, routine=False, demo=True)
         failure.positives.append((seen, skills.to(device)))
+    # The skills the demonstration refutes would take over where the culprit is suppressed, and act otherwise than
+    # shown: the failed and demonstrated contexts are hazardous for them too (the egg crushed in turn by every
+    # candidate the core proposes for it, docs/measurements.md, the skill that performs the demonstration).
+    for k in torch.nonzero(refuted).flatten().tolist():
+        there = torch.cat([failure.negatives[0], d_raw])
+        kvm.add_fail(there, torch.full((len(there),), k), failure.hypothesis_id, failure.permanent)
+        failure.refuted.append((there, torch.full((len(there),), k, device=device)))
     experience = failure.experience
     unknown = ~experience.known(d_raw, KNOWN_SAFE_QUANTILE) | experience.departed(d_raw, cfg.departure_radius)
     failure.demo_negative_steps = _steps(unknown)

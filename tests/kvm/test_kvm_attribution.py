@@ -290,6 +290,34 @@ def test_a_demonstration_of_a_skill_the_pool_has_is_no_knowledge_gap(make_policy
     assert report["demo_skill"] == 1 and 5 < report["positives_added"] <= 5 + 6
 
 
+def test_the_skill_that_performs_the_demonstration_alone_is_the_demonstrated_one_and_no_gap(
+    make_policy, make_batch, attempt
+) -> None:
+    """An alternative whose own prompt reproduces the corrective demonstration takes its positives, however weak its
+    relevance for the failed task: the pool holds the strategy, so no gap skill is grown."""
+    policy = make_policy(chunk_size=1, n_action_steps=1)
+    policy.begin_new_skill("gentle_grasp")
+    policy.pool.observe_queries(policy.encode_query(["gently pick up an egg"]))  # a candidate, far below gap_alpha
+    assert float(policy.skill_relevance([EGG])[0, 1]) < 0.5 * policy.config.kvm.gap_alpha
+    policy.begin_new_skill("firm_lift")
+    policy.pool.observe_queries(policy.encode_query(["firmly pick up an egg"]))  # another candidate
+    own = policy.pool.own_weights(1, 1)
+    steps = []
+    for t in range(5):
+        b = make_batch(policy.config, batch_size=1, task=EGG, seed=50 + t)
+        b["action"] = policy.predict_action_chunk(b, skill_weights=own)[:, 0]
+        steps.append(b)
+    report = policy.kvm_feedback(
+        "catastrophe", attempt(policy, EGG, steps=6), demonstration=make_demonstration(steps), gradient_steps=2
+    )
+    assert report["culprit"] == 0 and report["demo_skill"] == 1
+    assert report["new_skill"] is None and policy.n_skills == 3
+    # the candidate that acts otherwise than shown would take over next: the failure is hazardous for it too
+    assert report["refuted"] == [2]
+    stored = policy.kvm.fail_online.skill[policy.kvm.fail_online.filled()]
+    assert set(stored.tolist()) == {0, 2}
+
+
 def test_a_failure_with_the_culprit_suppressed_restarts_its_persistence(make_policy, attempt) -> None:
     """The blame stays with the skill the core relied on: it does not pass to the skills left in force."""
     policy = make_policy()

@@ -8,7 +8,7 @@ from torch import Tensor, nn
 
 from lerobot_kvm.kvm.context_encoder import ContextEncoder
 from lerobot_kvm.kvm.energy import EnergyModel, JointFeature, RiskClassifier, validity
-from lerobot_kvm.kvm.fusion import abstains, candidates, correction_validity, decision_weights
+from lerobot_kvm.kvm.fusion import abstains, candidates, correction_validity, decision_weights, mirrored
 from lerobot_kvm.kvm.gate import SmartGate, adaptive_threshold
 from lerobot_kvm.kvm.losses import bce_loss, contrastive_loss, energy_loss, total_loss
 from lerobot_kvm.kvm.metabolism import SkillMetabolism, fcrnc, srnc
@@ -166,22 +166,26 @@ def test_eq3_decision_weights_candidates_and_abstention_hand_values() -> None:
     torch.testing.assert_close(tiny, torch.tensor([[1.0, 0.5]]))
 
 
-def test_a_correction_is_valid_at_least_where_the_skill_it_corrects_is_not_and_is_relied_on() -> None:
-    v = torch.tensor([[0.02, 0.9, 0.1], [0.95, 0.3, 0.05], [0.0, 0.0, 0.0]])
+def test_a_correction_is_as_valid_as_the_skill_it_corrects_is_not_where_that_skill_is_relied_on() -> None:
+    v = torch.tensor([[0.02, 0.9, 0.1], [0.95, 0.3, 0.05], [0.0, 0.0, 0.0], [0.95, 0.3, 0.9]])
     corrections = (torch.tensor([False, False, True]), torch.tensor([0, 1, 0]))  # skill 2 corrects skill 0
     # relevance: the largest non-correcting skill sets the scale; row 3's skill 0 is a bystander (0.5 < 0.8)
-    alphas = torch.tensor([[2.0, 1.0, 5.0], [1.0, 1.0, 1.0], [1.0, 2.0, 1.0]])
-    expected = torch.tensor([[0.02, 0.9, 0.98], [0.95, 0.3, 0.05], [0.0, 0.0, 0.0]])
-    assert torch.allclose(correction_validity(v, corrections, alphas, necessity=0.8), expected)
+    alphas = torch.tensor([[2.0, 1.0, 5.0], [1.0, 1.0, 1.0], [1.0, 2.0, 1.0], [1.0, 1.0, 1.0]])
+    # row 4: skill 0 still holds, so its correction stays out however valid it judges itself (0.9 -> 0.05)
+    expected = torch.tensor([[0.02, 0.9, 0.98], [0.95, 0.3, 0.05], [0.0, 0.0, 0.0], [0.95, 0.3, 0.05]])
+    torch.testing.assert_close(correction_validity(v, corrections, alphas, necessity=0.8), expected)
     assert correction_validity(v, None, alphas) is v
+    # where skill 0 is relied on, skill 2's v mirrors it: no judgement of skill 2, so no suppression of it
+    assert mirrored(corrections, alphas, 0.8)[:, 2].tolist() == [True, True, False, True]
+    assert not mirrored(corrections, alphas, 0.8)[:, :2].any()
 
 
-def test_of_several_corrections_of_one_skill_only_the_most_valid_inherits_and_a_pruned_skill_passes_nothing() -> None:
+def test_of_several_corrections_of_one_skill_only_the_most_valid_takes_over_and_a_pruned_skill_passes_nothing() -> None:
     # skills 2 and 3 both correct skill 0 (made in two different contexts); skill 0 is relied on in every row
     corrections = (torch.tensor([False, False, True, True]), torch.tensor([0, 1, 0, 0]))
     alphas = torch.tensor([[2.0, 1.0, 1.0, 1.0]]).expand(3, -1)
     v = torch.tensor([[0.02, 0.9, 0.1, 0.3], [0.02, 0.9, 0.4, 0.2], [0.02, 0.9, 0.1, 0.1]])
-    expected = torch.tensor([[0.02, 0.9, 0.1, 0.98], [0.02, 0.9, 0.98, 0.2], [0.02, 0.9, 0.98, 0.1]])
+    expected = torch.tensor([[0.02, 0.9, 0.0, 0.98], [0.02, 0.9, 0.98, 0.0], [0.02, 0.9, 0.98, 0.0]])
     torch.testing.assert_close(correction_validity(v, corrections, alphas, necessity=0.8), expected)
     pruned_0 = torch.tensor([False, True, True, True])
     torch.testing.assert_close(correction_validity(v, corrections, alphas, 0.8, pruned_0), v)

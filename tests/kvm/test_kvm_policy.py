@@ -115,8 +115,10 @@ def test_a_correction_is_out_of_force_with_the_gate_closed_and_takes_over_where_
     assert torch.equal(tele.validity[:, 0], raw[:, 0])
     relied_on = tele.alpha[:, 0] >= 0.8 * tele.alpha[:, 0]  # skill 0 is the only skill that corrects nothing
     assert relied_on.all()
-    assert torch.equal(tele.validity[:, 1], torch.maximum(raw[:, 1], 1 - raw[:, 0]))
-    assert torch.equal(tele.skill_weight, tele.validity)
+    assert torch.equal(tele.validity[:, 1], 1 - raw[:, 0])  # as valid as the skill it corrects is not
+    assert not tele.intervention[:, 1].any()  # held out where skill 0 holds: a mirror, not a suppression
+    # the weights are eq. 3's v * alpha over the candidates not suppressed (v >= tau_v = 0.1)
+    torch.testing.assert_close(tele.skill_weight, tele.validity.masked_fill(tele.validity < 0.1, 0.0))
 
 
 def test_non_finite_context_or_energy_is_invalid_never_valid(make_policy, make_batch) -> None:
