@@ -600,8 +600,8 @@ def _learn_from_demonstration(
     # The skills the demonstration refutes would take over where the culprit is suppressed, and act otherwise than
     # shown: the failed and demonstrated contexts are hazardous for them too (the egg crushed in turn by every
     # candidate the core proposes for it, docs/measurements.md, the skill that performs the demonstration).
+    there = torch.cat([failure.negatives[0], d_raw])
     for k in torch.nonzero(refuted).flatten().tolist():
-        there = torch.cat([failure.negatives[0], d_raw])
         kvm.add_fail(there, torch.full((len(there),), k), failure.hypothesis_id, failure.permanent)
         failure.refuted.append((there, torch.full((len(there),), k, device=device)))
     experience = failure.experience
