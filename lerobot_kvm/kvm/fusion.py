@@ -52,39 +52,33 @@ def plain_scale(alphas: Tensor, correcting: Tensor) -> Tensor:
     return alphas.abs().masked_fill(correcting.unsqueeze(0), 0.0).amax(-1).clamp_min(1e-8)
 
 
-def correction_validity(
-    v: Tensor,
-    corrections: tuple[Tensor, Tensor] | None,
-    alphas: Tensor,
-    necessity: float = 0.8,
-    active: Tensor | None = None,
-) -> Tensor:
-    """v [B, S] with each correcting skill i set to 1 - v_target(i) in the rows where its target is necessary: the
-    target's relevance alpha [B, S] is at least `necessity` times the largest relevance of a skill that corrects
-    nothing (the target is the knowledge the task relies on, not a bystander that every novel context makes
-    invalid). Elsewhere a correction keeps its own v. `corrections` = (mask [S] bool, target [S] index) from
-    `CodaPromptPool.corrections` (None: no correcting skill, v unchanged).
+def correction_validity(v: Tensor, corrections: tuple[Tensor, Tensor] | None, mirror: Tensor | None) -> Tensor:
+    """v [B, S] with each correcting skill i set to 1 - v_target(i) in the rows where it mirrors its target
+    (`mirror` [B, S] from `mirrored`: the target is the knowledge the task relies on, not a bystander that every
+    novel context makes invalid). Elsewhere a correction keeps its own v. `corrections` = (mask [S] bool, target
+    [S] index) from `CodaPromptPool.corrections` (None: no correcting skill, v unchanged).
 
     The correction replaces its own v there rather than raising it: where the target still holds (v_target near 1)
     a correction with a high own v would otherwise share the fused prompt with it, and on the default pool the
     drawer's correction carried the prior variant's control steps without any suppression (docs/measurements.md,
     corrections in force only where the target is not). When one skill has several corrections (each made in
     another context), only the one with the highest own validity in a row takes over there (ties go to the
-    oldest); the others weigh nothing there. A pruned target (`active` [S] bool false) passes nothing on: its v = 0
-    is no judgement of the context."""
-    if corrections is None:
+    oldest); the others weigh nothing there."""
+    if corrections is None or mirror is None:
         return v
     mask, target = corrections
     inherited = torch.where(_chosen_sibling(v, mask, target), 1 - v[:, target], torch.zeros_like(v))
-    return torch.where(mirrored(corrections, alphas, necessity, active), inherited, v)
+    return torch.where(mirror, inherited, v)
 
 
 def mirrored(
     corrections: tuple[Tensor, Tensor], alphas: Tensor, necessity: float = 0.8, active: Tensor | None = None
 ) -> Tensor:
-    """[B, S] bool: the correcting skills whose v mirrors the skill they correct in these rows (`correction_validity`:
-    the target is necessary). Such a v is no judgement of the correction itself, so a correction held out where its
-    target still holds is no suppression (`KvmStepTelemetry.intervention`)."""
+    """[B, S] bool: the correcting skills whose v mirrors the skill they correct in these rows (`correction_validity`):
+    the target's relevance alpha [B, S] is at least `necessity` times the largest relevance of a skill that corrects
+    nothing. Such a v is no judgement of the correction itself, so a correction held out where its target still
+    holds is no suppression (`KvmStepTelemetry.intervention`). A pruned target (`active` [S] bool false) passes
+    nothing on: its v = 0 is no judgement of the context."""
     mask, target = corrections
     mass = alphas.abs()
     necessary = mass[:, target] >= necessity * plain_scale(mass, mask).unsqueeze(-1)

@@ -242,8 +242,9 @@ class KnowledgeValidityModule(nn.Module):
         v = v.masked_fill(off, 0.0)
         mirror = None
         if corrections is not None:
-            v = torch.where(off, 0.0, correction_validity(v, corrections, alphas, cfg.tau_high, active))
-            mirror = mirrored(corrections, alphas, cfg.tau_high, active) & ~off
+            mirror = mirrored(corrections, alphas, cfg.tau_high, active)
+            v = torch.where(off, 0.0, correction_validity(v, corrections, mirror))
+            mirror &= ~off
         weights = decision_weights(v, alphas, candidate)
         if corrections is not None:
             weights = weights.masked_fill(corrections[0].unsqueeze(0) & ~gate.unsqueeze(-1), 0.0)

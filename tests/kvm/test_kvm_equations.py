@@ -173,8 +173,8 @@ def test_a_correction_is_as_valid_as_the_skill_it_corrects_is_not_where_that_ski
     alphas = torch.tensor([[2.0, 1.0, 5.0], [1.0, 1.0, 1.0], [1.0, 2.0, 1.0], [1.0, 1.0, 1.0]])
     # row 4: skill 0 still holds, so its correction stays out however valid it judges itself (0.9 -> 0.05)
     expected = torch.tensor([[0.02, 0.9, 0.98], [0.95, 0.3, 0.05], [0.0, 0.0, 0.0], [0.95, 0.3, 0.05]])
-    torch.testing.assert_close(correction_validity(v, corrections, alphas, necessity=0.8), expected)
-    assert correction_validity(v, None, alphas) is v
+    torch.testing.assert_close(correction_validity(v, corrections, mirrored(corrections, alphas, 0.8)), expected)
+    assert correction_validity(v, None, None) is v
     # where skill 0 is relied on, skill 2's v mirrors it: no judgement of skill 2, so no suppression of it
     assert mirrored(corrections, alphas, 0.8)[:, 2].tolist() == [True, True, False, True]
     assert not mirrored(corrections, alphas, 0.8)[:, :2].any()
@@ -186,9 +186,9 @@ def test_of_several_corrections_of_one_skill_only_the_most_valid_takes_over_and_
     alphas = torch.tensor([[2.0, 1.0, 1.0, 1.0]]).expand(3, -1)
     v = torch.tensor([[0.02, 0.9, 0.1, 0.3], [0.02, 0.9, 0.4, 0.2], [0.02, 0.9, 0.1, 0.1]])
     expected = torch.tensor([[0.02, 0.9, 0.0, 0.98], [0.02, 0.9, 0.98, 0.0], [0.02, 0.9, 0.98, 0.0]])
-    torch.testing.assert_close(correction_validity(v, corrections, alphas, necessity=0.8), expected)
+    torch.testing.assert_close(correction_validity(v, corrections, mirrored(corrections, alphas, 0.8)), expected)
     pruned_0 = torch.tensor([False, True, True, True])
-    torch.testing.assert_close(correction_validity(v, corrections, alphas, 0.8, pruned_0), v)
+    torch.testing.assert_close(correction_validity(v, corrections, mirrored(corrections, alphas, 0.8, pruned_0)), v)
 
 
 def test_eq3_fused_prompt_is_the_normalised_weighted_sum_of_skill_prompts() -> None:
