@@ -352,7 +352,8 @@ def test_kvm_config_on_the_command_line_and_validation() -> None:
     assert cfg.kvm.enabled is False and cfg.kvm.risk_model == "bce" and cfg.kvm.smart_gate is False
     assert cfg.kvm.gate_k == 2.0
     defaults = KvmConfig()
-    assert (defaults.gate_k, defaults.gate_window, GAMMA, L0) == (3.0, 1000, 1.0, -5.0)  # App. E
+    assert (defaults.gate_window, GAMMA, L0) == (1000, 1.0, -5.0)  # App. E
+    assert defaults.gate_k == 1.5  # eq. 1's k, measured (App. E has 3)
     assert (ENERGY_MARGIN, PERSISTENCE, defaults.tau_high, TAU_V) == (10.0, 3, 0.8, 0.1)
     assert (METABOLISM_WINDOW, PRUNE_THRESHOLD) == (5, 0.8)
     assert defaults.encoder_hidden == [128, 128] and defaults.energy_hidden == [256, 256, 256]
