@@ -32,7 +32,7 @@ class KvmConfig:
 
     # ------------------------------------------------------------------ smart gate (eq. 1, App. E)
     # eq. 1's k. App. E's k = 3 put tau above the 99th percentile of a heavy-tailed sigma^2 (the top 1 % of the
-    # safe references hold 84 % of its variance): the gate stayed shut on the shifted book and the stuck drawer;
+    # safe references hold 84 % of its variance): the gate stayed shut on the shifted book after its feedback;
     # 1.5 keeps it shut on 99.5 % of solved routine steps (docs/measurements.md, the smart gate's k).
     gate_k: float = 1.5
     gate_window: int = 1000  # eq. 1, App. E: N = 1000 successful interactions (control steps)
