@@ -165,6 +165,9 @@ def rate_counts(records: Sequence[Record], validity: bool = True) -> dict[str, C
         "catastrophic_failure_rate": _cell_counts(attempts, lambda a: a["outcome"] == "catastrophe"),
         "abstention_rate": _cell_counts(attempts, lambda a: a["outcome"] == "abstention"),
         "prior_retention": _cell_counts(prior, lambda r: r["outcome"] == "success"),
+        "control_success_rate": _cell_counts(
+            [r for r in records if r["kind"] == "control"], lambda r: r["outcome"] == "success"
+        ),
     }
     if validity:
         controls = [r for r in records if r["kind"] in ("prior", "control")]

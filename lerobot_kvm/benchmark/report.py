@@ -90,7 +90,7 @@ def method_table(results: dict[str, Any]) -> list[str]:
                     )
                 ],
                 _with_interval(res, "prior_retention"),
-                _pct(res["overall"]["control_success_rate"]),
+                _with_interval(res, "control_success_rate"),
                 _with_interval(res, "false_intervention_rate"),
                 _num(res["wall_time_s"] / 60),
             ]
@@ -142,6 +142,7 @@ DIFFERENCE_LABELS = {
     "catastrophic_failure_rate": "CFR",
     "abstention_rate": "abstentions",
     "prior_retention": "prior retention",
+    "control_success_rate": "benign control",
     "false_intervention_rate": "false interventions",
     "gate_activation_rate_solved": "gate, solved routine",
 }

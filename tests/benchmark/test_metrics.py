@@ -109,6 +109,7 @@ def test_rate_counts_split_each_rate_by_run_and_scenario() -> None:
     assert counts["catastrophic_failure_rate"] == {(0, "egg"): (1, 4), (0, "drawer"): (0, 1)}
     assert counts["abstention_rate"] == {(0, "egg"): (0, 4), (0, "drawer"): (0, 1)}
     assert counts["prior_retention"] == {(0, "egg"): (1, 1), (0, "drawer"): (0, 1)}
+    assert counts["control_success_rate"] == {(0, "egg"): (1, 1)}  # drawer has no benign control here
     assert counts["false_intervention_rate"] == {(0, "egg"): (1, 2), (0, "drawer"): (0, 1)}
     assert counts["gate_activation_rate_solved"] == {(0, "egg"): (1, 10)}
     assert set(rate_counts(RECORDS, validity=False)) == {
@@ -117,6 +118,7 @@ def test_rate_counts_split_each_rate_by_run_and_scenario() -> None:
         "catastrophic_failure_rate",
         "abstention_rate",
         "prior_retention",
+        "control_success_rate",
     }
 
 
@@ -132,7 +134,7 @@ def test_paired_differences_against_a_reference_method() -> None:
     better = [dict(r, outcome="success") if r["kind"] == "challenge" else r for r in RECORDS]
     diffs = paired_differences(better, RECORDS, validity=False)
     rates = {"success_rate", "first_attempt_success_rate", "catastrophic_failure_rate", "abstention_rate"}
-    assert set(diffs) == rates | {"prior_retention"}
+    assert set(diffs) == rates | {"prior_retention", "control_success_rate"}
     assert diffs["success_rate"]["value"] == pytest.approx(1 - 2 / 3)
     # resampled: egg twice gives 1 - 1/2, drawer twice 0, one of each 1 - 2/3: 0 is inside
     assert diffs["success_rate"]["low"] == pytest.approx(0.0) and not diffs["success_rate"]["detectable"]
