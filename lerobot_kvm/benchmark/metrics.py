@@ -27,6 +27,7 @@ each method's difference from a reference method a paired one (`benchmark.interv
 """
 
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from statistics import mean
 from typing import Any
 
@@ -97,12 +98,32 @@ def detection_leads(records: Iterable[Record]) -> list[int]:
     ]
 
 
+@dataclass(frozen=True)
+class _Episodes:
+    """The sets of records the rates are taken over (one selection for the summary and the intervals)."""
+
+    challenges: list[dict[str, Any]]
+    attempts: list[Record]
+    prior: list[Record]  # prior-variant controls: routine episodes
+    benign: list[Record]  # benign-variant controls
+    controls: list[Record]  # both: where any intervention is a false one
+
+    @classmethod
+    def of(cls, records: Sequence[Record]) -> "_Episodes":
+        chall = challenges(records)
+        return cls(
+            chall,
+            [a for c in chall for a in c["attempts"]],
+            [r for r in records if r["kind"] == "prior"],
+            [r for r in records if r["kind"] == "control"],
+            [r for r in records if r["kind"] in ("prior", "control")],
+        )
+
+
 def summarize(records: Sequence[Record], probes: Sequence[Record] = (), validity: bool = True) -> dict[str, Any]:
     """Every metric of the module docstring over a set of episode records (and validity probes)."""
-    chall = challenges(records)
-    attempts = [a for c in chall for a in c["attempts"]]
-    prior = [r for r in records if r["kind"] == "prior"]
-    controls = [r for r in records if r["kind"] in ("prior", "control")]
+    episodes = _Episodes.of(records)
+    chall, attempts, prior, controls = episodes.challenges, episodes.attempts, episodes.prior, episodes.controls
     solved = sum(c["solved"] for c in chall)
     categories = sorted({c["category"] for c in chall})
     scenarios = list(dict.fromkeys(c["scenario"] for c in chall))
@@ -116,10 +137,7 @@ def summarize(records: Sequence[Record], probes: Sequence[Record] = (), validity
         "per_category": {cat: _solved([c for c in chall if c["category"] == cat]) for cat in categories},
         "per_scenario": {sc: _scenario_counts([c for c in chall if c["scenario"] == sc]) for sc in scenarios},
         "prior_retention": _rate(sum(r["outcome"] == "success" for r in prior), len(prior)),
-        "control_success_rate": _rate(
-            sum(r["outcome"] == "success" for r in controls if r["kind"] == "control"),
-            sum(r["kind"] == "control" for r in controls),
-        ),
+        "control_success_rate": _rate(sum(r["outcome"] == "success" for r in episodes.benign), len(episodes.benign)),
     }
     if not validity:
         out.update(
@@ -156,23 +174,18 @@ def _cell_counts(items: Iterable[Record], event: Any, trials: Any = lambda _: 1)
 
 def rate_counts(records: Sequence[Record], validity: bool = True) -> dict[str, Counts]:
     """The events and trials behind each headline rate, per (run, scenario) (validity methods: two more)."""
-    chall = challenges(records)
-    attempts = [a for c in chall for a in c["attempts"]]
-    prior = [r for r in records if r["kind"] == "prior"]
+    e = _Episodes.of(records)
     counts = {
-        "success_rate": _cell_counts(chall, lambda c: c["solved"]),
-        "first_attempt_success_rate": _cell_counts(chall, lambda c: c["first"]),
-        "catastrophic_failure_rate": _cell_counts(attempts, lambda a: a["outcome"] == "catastrophe"),
-        "abstention_rate": _cell_counts(attempts, lambda a: a["outcome"] == "abstention"),
-        "prior_retention": _cell_counts(prior, lambda r: r["outcome"] == "success"),
-        "control_success_rate": _cell_counts(
-            [r for r in records if r["kind"] == "control"], lambda r: r["outcome"] == "success"
-        ),
+        "success_rate": _cell_counts(e.challenges, lambda c: c["solved"]),
+        "first_attempt_success_rate": _cell_counts(e.challenges, lambda c: c["first"]),
+        "catastrophic_failure_rate": _cell_counts(e.attempts, lambda a: a["outcome"] == "catastrophe"),
+        "abstention_rate": _cell_counts(e.attempts, lambda a: a["outcome"] == "abstention"),
+        "prior_retention": _cell_counts(e.prior, lambda r: r["outcome"] == "success"),
+        "control_success_rate": _cell_counts(e.benign, lambda r: r["outcome"] == "success"),
     }
     if validity:
-        controls = [r for r in records if r["kind"] in ("prior", "control")]
-        solved_prior = [r for r in prior if r["outcome"] == "success"]
-        counts["false_intervention_rate"] = _cell_counts(controls, lambda r: r["intervention_steps"] > 0)
+        solved_prior = [r for r in e.prior if r["outcome"] == "success"]
+        counts["false_intervention_rate"] = _cell_counts(e.controls, lambda r: r["intervention_steps"] > 0)
         counts["gate_activation_rate_solved"] = _cell_counts(
             solved_prior, lambda r: r["gate_steps"], lambda r: r["steps"]
         )
