@@ -106,7 +106,6 @@ class _Episodes:
     attempts: list[Record]
     prior: list[Record]  # prior-variant controls: routine episodes
     benign: list[Record]  # benign-variant controls
-    controls: list[Record]  # both: where any intervention is a false one
 
     @classmethod
     def of(cls, records: Sequence[Record]) -> "_Episodes":
@@ -116,8 +115,17 @@ class _Episodes:
             [a for c in chall for a in c["attempts"]],
             [r for r in records if r["kind"] == "prior"],
             [r for r in records if r["kind"] == "control"],
-            [r for r in records if r["kind"] in ("prior", "control")],
         )
+
+    @property
+    def controls(self) -> list[Record]:
+        """Both kinds of control: where any intervention is a false one."""
+        return self.prior + self.benign
+
+    @property
+    def solved_prior(self) -> list[Record]:
+        """The routine episodes that succeeded: where the gate opening is a false alarm."""
+        return [r for r in self.prior if r["outcome"] == "success"]
 
 
 def summarize(records: Sequence[Record], probes: Sequence[Record] = (), validity: bool = True) -> dict[str, Any]:
@@ -155,7 +163,7 @@ def summarize(records: Sequence[Record], probes: Sequence[Record] = (), validity
     out.update(
         false_intervention_rate=_rate(sum(r["intervention_steps"] > 0 for r in controls), len(controls)),
         gate_activation_rate=_gate_rate(prior),
-        gate_activation_rate_solved=_gate_rate([r for r in prior if r["outcome"] == "success"]),
+        gate_activation_rate_solved=_gate_rate(episodes.solved_prior),
         intervention_rate=_rate(sum(a["intervention_steps"] for a in attempts), sum(a["steps"] for a in attempts)),
         validity_auroc=auroc([1 - v for v in hazard], [1 - v for v in safe]) if hazard and safe else None,
         detection_lead_steps=mean(leads) if leads else None,
@@ -184,10 +192,9 @@ def rate_counts(records: Sequence[Record], validity: bool = True) -> dict[str, C
         "control_success_rate": _cell_counts(e.benign, lambda r: r["outcome"] == "success"),
     }
     if validity:
-        solved_prior = [r for r in e.prior if r["outcome"] == "success"]
         counts["false_intervention_rate"] = _cell_counts(e.controls, lambda r: r["intervention_steps"] > 0)
         counts["gate_activation_rate_solved"] = _cell_counts(
-            solved_prior, lambda r: r["gate_steps"], lambda r: r["steps"]
+            e.solved_prior, lambda r: r["gate_steps"], lambda r: r["steps"]
         )
     return counts
 
