@@ -34,12 +34,14 @@ from ..datasets.json_config import build, build_list, check_counts, read_json
 from ..datasets.labels import load_labels
 from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
 from ..envs.catalogue import scenario_info
+from ..evaluation.checkpoint_selection import choose_stage_checkpoint
 from .cl_metrics import cl_metrics, joint_metrics
 from .lerobot_commands import eval_command, run_logged, train_command
 from .lock import hold
 from .resume import check_settings
 
 CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"
+SELECTION = "selection.json"  # a stage's checkpoints scored by rollouts, and the one the sequence goes on from
 TIMING = "timing.json"  # a finished stage's training wall time, kept for runs that resume
 POLICIES = ("coda_kvm", "act", "diffusion")  # LeRobot policy types a method may train
 MODES = ("sequential", "joint")
@@ -97,6 +99,9 @@ class MethodSpec:
     later_stage_args: list[str] = field(default_factory=list)  # ... only for stages after the first
     eval_args: list[str] = field(default_factory=list)  # extra `lerobot-eval` arguments
     checkpoints_from: str | None = None
+    # Steps between the checkpoints a stage saves; the sequence goes on from the one its skill solves most selection
+    # episodes with (`evaluation.checkpoint_selection`). 0: from the stage's last checkpoint.
+    select_every: int = 0
 
     def __post_init__(self) -> None:
         if self.policy not in POLICIES:
@@ -105,7 +110,9 @@ class MethodSpec:
             raise ValueError(f"method {self.name}: mode must be one of {MODES}, got {self.mode!r}")
         if self.checkpoints_from is not None and self.mode != "sequential":
             raise ValueError(f"method {self.name}: checkpoints_from needs mode 'sequential'")
-        check_counts(self, {"steps_per_stage": 1, "batch_size": 1, "pretrain_steps": 0})
+        check_counts(self, {"steps_per_stage": 1, "batch_size": 1, "pretrain_steps": 0, "select_every": 0})
+        if self.select_every and (self.mode != "sequential" or self.checkpoints_from is not None):
+            raise ValueError(f"method {self.name}: select_every needs a sequential method that trains its stages")
         for key in ("args", "later_stage_args", "eval_args"):  # a string would be passed on character by character
             value = getattr(self, key)
             if not isinstance(value, list) or not all(isinstance(a, str) for a in value):
@@ -123,12 +130,15 @@ class SequenceConfig:
     pretrain_episodes_per_task: int = 20
     eval_episodes: int = 10
     eval_seed: int = 100_000  # far from the recording seeds: evaluation starts are held out
+    select_episodes: int = 20  # episodes that score each saved checkpoint of a stage (methods with `select_every`)
     dataset_root: str | None = None
     action_noise: float = 0.0  # the recording's executed-action noise (`RecordingSpec.action_noise`)
 
     def __post_init__(self) -> None:
         # the recording's and evaluation's counts: refused here, not by the recorder after settings are written
-        check_counts(self, {"episodes_per_task": 1, "pretrain_episodes_per_task": 1, "eval_episodes": 1})
+        check_counts(
+            self, {"episodes_per_task": 1, "pretrain_episodes_per_task": 1, "eval_episodes": 1, "select_episodes": 1}
+        )
         if not self.tasks:
             raise ValueError("a sequence needs at least one task")
         names = [t.name for t in self.tasks]
@@ -184,6 +194,26 @@ def task_episodes(dataset_root: Path, tasks: Sequence[TaskSpec]) -> list[list[in
     return out
 
 
+def finished(run_dir: Path, steps: int) -> bool:
+    """A `lerobot-train` run of `steps` steps saved its final checkpoint: LeRobot points `last` at a checkpoint
+    once it is written, and a run that saves along the way (`select_every`) has earlier ones."""
+    from lerobot.common.train_utils import get_step_identifier
+
+    last = run_dir / CHECKPOINT
+    return last.exists() and last.parent.resolve().name == get_step_identifier(steps, steps)
+
+
+def stage_checkpoint(stage_dir: Path, selected: bool) -> Path:
+    """The checkpoint a trained stage hands on: its selected one (`SELECTION`), or its last. A path that does not
+    exist while the stage is not trained, or its checkpoint not selected, yet."""
+    if not selected:
+        return stage_dir / "train" / CHECKPOINT
+    path = stage_dir / SELECTION
+    if not path.exists():
+        return path
+    return stage_dir / "train" / "checkpoints" / json.loads(path.read_text())["selected"] / "pretrained_model"
+
+
 def _all_episodes(per_task: list[list[int]]) -> list[int]:
     return sorted(e for episodes in per_task for e in episodes)
 
@@ -236,13 +266,17 @@ class ContinualRun:
         method = next((m for m in self.config.methods if m.name == method_name), None)
         if method is None:
             raise ValueError(f"unknown method {method_name!r}; the config has {[m.name for m in self.config.methods]}")
-        owner = method.checkpoints_from or method.name
+        owner = self._owner(method)
         last = len(self.config.tasks) - 1
-        stage = self.out / owner / "joint" if method.mode == "joint" else self._stage_dir(owner, last)
-        checkpoint = stage / "train" / CHECKPOINT
+        stage = self.out / owner.name / "joint" if method.mode == "joint" else self._stage_dir(owner.name, last)
+        checkpoint = stage_checkpoint(stage, bool(owner.select_every))
         if not checkpoint.exists():
-            raise FileNotFoundError(f"{checkpoint} missing: run the sequence's method {owner!r} first")
+            raise FileNotFoundError(f"{checkpoint} missing: run the sequence's method {owner.name!r} first")
         return checkpoint
+
+    def _owner(self, method: MethodSpec) -> MethodSpec:
+        """The method that trains `method`'s checkpoints (itself, or the one named by `checkpoints_from`)."""
+        return next(m for m in self.config.methods if m.name == (method.checkpoints_from or method.name))
 
     def _check_settings(self) -> None:
         """Refuse to resume stages, evaluations or kept results made with other settings: the sequence's (every
@@ -287,7 +321,7 @@ class ContinualRun:
         """One `lerobot-train` run; a finished stage is reused, an interrupted one starts again."""
         run_dir = stage_dir / "train"
         checkpoint = run_dir / CHECKPOINT
-        if checkpoint.exists():
+        if finished(run_dir, method.steps_per_stage):
             return checkpoint
         shutil.rmtree(run_dir, ignore_errors=True)  # lerobot-train refuses an existing output dir
         start = time.time()
@@ -299,13 +333,33 @@ class ContinualRun:
             method.batch_size,
             self.config.seed,
             policy=policy,
+            save_every=method.select_every or None,
             episodes=episodes,
             launcher=self.launcher,
             device=self.device,
         )
-        run_logged(cmd, stage_dir / "train.log", done=checkpoint.exists)  # the only checkpoint is the final one
+        run_logged(cmd, stage_dir / "train.log", done=lambda: finished(run_dir, method.steps_per_stage))
         (stage_dir / TIMING).write_text(json.dumps({"train_wall_s": time.time() - start}))
         return checkpoint
+
+    def _select(self, stage_dir: Path, task: TaskSpec) -> None:
+        """Score a trained stage's checkpoints on its task and keep the choice (`SELECTION`), once."""
+        path = stage_dir / SELECTION
+        if path.exists():
+            return
+        start = time.time()
+        choice = choose_stage_checkpoint(
+            stage_dir / "train",
+            task.scenario,
+            task.variant,
+            task.env_instruction,
+            task.name,
+            self.config.select_episodes,
+            self.device,
+        )
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps({**choice, "wall_s": time.time() - start}, indent=2))
+        tmp.replace(path)  # a killed selection leaves no half-written choice
 
     @staticmethod
     def _train_time(stage_dir: Path) -> float | None:
@@ -356,10 +410,14 @@ class ContinualRun:
             stage_dir = self._stage_dir(method.name, k)
             bar.set_description(f"{method.name}: stage {k + 1}/{len(tasks)} {task.name}")
             if method.checkpoints_from is None:
-                previous = self._train(method, stage_dir, self._policy_args(method, previous, task.name), episodes[k])
+                self._train(method, stage_dir, self._policy_args(method, previous, task.name), episodes[k])
                 stage_times.append(self._train_time(stage_dir))
+                if method.select_every:
+                    self._select(stage_dir, task)
+                previous = stage_checkpoint(stage_dir, bool(method.select_every))
             else:
-                previous = self.out / method.checkpoints_from / stage_dir.name / "train" / CHECKPOINT
+                owner = self.out / method.checkpoints_from / stage_dir.name
+                previous = stage_checkpoint(owner, bool(self._owner(method).select_every))
                 if not previous.exists():
                     raise FileNotFoundError(f"{method.name}: {previous} missing: run {method.checkpoints_from} first")
             bar.update()

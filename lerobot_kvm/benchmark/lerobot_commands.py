@@ -134,10 +134,11 @@ def train_command(
     extra: Sequence[str] = (),
     launcher: Sequence[str] = (),
     device: str = "cpu",
+    save_every: int | None = None,
 ) -> list[str]:
     """`lerobot-train` on a local dataset (optionally a subset of its episodes); `policy` names the policy
     (`--policy.type=...` or `--policy.path=...`), `launcher` prefixes a multi-process launcher, `device` is
-    torch's (`cpu`, `cuda`, ...).
+    torch's (`cpu`, `cuda`, ...); a checkpoint is saved every `save_every` steps (default: at the end only).
 
     Under a launcher every rank loads its batches in its own process (no DataLoader worker): the ranks
     already fill the cores (torchrun gives each one thread), and a worker's shutdown at exit can leave a rank
@@ -159,7 +160,7 @@ def train_command(
         f"--output_dir={output_dir}",
         f"--steps={steps}",
         f"--batch_size={batch_size}",
-        f"--save_freq={steps}",
+        f"--save_freq={save_every or steps}",
         f"--log_freq={max(1, min(100, steps // 4))}",
         f"--num_workers={workers}",
         f"--seed={seed}",

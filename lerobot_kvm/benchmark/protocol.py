@@ -44,7 +44,7 @@ from ..datasets.json_config import build, check_counts, read_json
 from ..envs.catalogue import SCENARIO_INFOS, scenario_info
 from ..envs.env import KvmObsolescenceEnv
 from ..evaluation.rescue import Envelope
-from ..evaluation.rollouts import expert_rollout, policy_processors, run_attempt
+from ..evaluation.rollouts import expert_rollout, load_checkpoint, run_attempt
 from ..evaluation.validity_check import CONTEXT, shift_step
 from ..kvm.configuration import KvmConfig
 from ..kvm.supervisor import FEEDBACK_LR
@@ -153,26 +153,13 @@ def load_policy(
     """(policy, preprocessor, postprocessor) of a method on `device`: the policy from its pool checkpoint (or from
     `weights`, the state a resumed run had reached), the processors always from the pool checkpoint. `kvm`:
     settings over the checkpoint's KVM config, under the method's own switches."""
-    from lerobot.configs.policies import PreTrainedConfig
-
-    from ..policy import CodaKvmPolicy  # importing it registers the `coda_kvm` config type
-
-    config = PreTrainedConfig.from_pretrained(weights or checkpoint)
-    config.device = device
     if method in KVM_METHODS:
-        policy_class = CodaKvmPolicy
-        config.kvm = replace(config.kvm, **{**(kvm or {}), **KVM_METHODS[method]})
+        kvm = {**(kvm or {}), **KVM_METHODS[method]}
     elif method in ORACLE_METHODS:
-        policy_class = CodaKvmPolicy
-        config.kvm = replace(config.kvm, enabled=False)
-    else:  # a peer: the LeRobot policy class of the checkpoint's own type
-        from lerobot.policies.factory import get_policy_class
-
-        policy_class = get_policy_class(config.type)
-    policy = policy_class.from_pretrained(weights or checkpoint, config=config)
-    policy.eval()
-    pre, post = policy_processors(policy, checkpoint)
-    return policy, pre, post
+        kvm = {"enabled": False}
+    else:  # a peer: its checkpoint has no KVM
+        kvm = None
+    return load_checkpoint(checkpoint, weights, kvm, device)
 
 
 # Every other method is compared with this one by a paired interval on each rate's difference (docs/benchmark.md).

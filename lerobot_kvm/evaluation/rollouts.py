@@ -6,6 +6,7 @@ policy's KVM trace; an expert rollout records a corrective demonstration in the 
 """
 
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -45,6 +46,35 @@ def policy_processors(policy: Any, checkpoint: Any) -> tuple[Processor, Processo
 
     overrides = {"device_processor": {"device": str(policy.config.device)}}
     return make_pre_post_processors(policy.config, pretrained_path=str(checkpoint), preprocessor_overrides=overrides)
+
+
+def load_checkpoint(
+    checkpoint: Path,
+    weights: Path | None = None,
+    kvm: dict[str, Any] | None = None,
+    device: str = "cpu",
+) -> tuple[Any, Processor, Processor]:
+    """(policy, preprocessor, postprocessor) of a checkpoint of any LeRobot policy type, in eval mode on `device`:
+    the weights from `weights` when given (the state a resumed run had reached), the processors always from
+    `checkpoint`. `kvm`: settings over a `coda_kvm` checkpoint's own KVM config."""
+    from dataclasses import replace
+
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import get_policy_class
+
+    from ..policy import CodaKvmPolicy  # importing it registers the `coda_kvm` config type
+
+    config = PreTrainedConfig.from_pretrained(weights or checkpoint)
+    config.device = device
+    if isinstance(config, CodaKvmPolicy.config_class):
+        policy_class = CodaKvmPolicy
+        config.kvm = replace(config.kvm, **(kvm or {}))
+    else:  # a peer: the LeRobot policy class of the checkpoint's own type
+        policy_class = get_policy_class(config.type)
+    policy = policy_class.from_pretrained(weights or checkpoint, config=config)
+    policy.eval()
+    pre, post = policy_processors(policy, checkpoint)
+    return policy, pre, post
 
 
 def observation_batch(observation: dict[str, Any], task: str) -> dict[str, Any]:

@@ -68,6 +68,10 @@ def test_task_names_and_instructions():
         (lambda: SequenceConfig("s", [TaskSpec("book"), TaskSpec("book")], [MethodSpec("m")]), "distinct"),
         (lambda: SequenceConfig("s", [TaskSpec("book")], [MethodSpec("m", checkpoints_from="later")]), "later"),
         (lambda: MethodSpec("m", mode="joint", checkpoints_from="x"), "sequential"),
+        (lambda: MethodSpec("m", mode="joint", select_every=100), "select_every"),
+        (lambda: MethodSpec("m", checkpoints_from="x", select_every=100), "select_every"),
+        (lambda: MethodSpec("m", select_every=-1), "select_every"),
+        (lambda: SequenceConfig("s", [TaskSpec("book")], [MethodSpec("m")], select_episodes=0), "select_episodes"),
     ],
 )
 def test_bad_configs_are_rejected_with_the_offending_value(make, message):
@@ -88,6 +92,29 @@ def test_a_sequence_trains_every_stage_on_its_device(tmp_path, monkeypatch):
     assert "--policy.device=cuda" in cmd and "--policy.device=cpu" not in cmd
 
 
+def test_a_stage_hands_on_its_selected_checkpoint_once_selected(tmp_path):
+    from lerobot_kvm.benchmark.continual import SELECTION, stage_checkpoint
+
+    assert stage_checkpoint(tmp_path, False) == tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
+    assert not stage_checkpoint(tmp_path, True).exists()  # not selected yet: reads as missing
+    (tmp_path / SELECTION).write_text(json.dumps({"selected": "000300"}))
+    assert stage_checkpoint(tmp_path, True) == tmp_path / "train" / "checkpoints" / "000300" / "pretrained_model"
+
+
+def test_a_run_is_finished_only_once_its_final_checkpoint_is_written(tmp_path):
+    from lerobot_kvm.benchmark.continual import finished
+
+    checkpoints = tmp_path / "checkpoints"
+    assert not finished(tmp_path, 500)
+    for step in ("000100", "000500"):
+        (checkpoints / step / "pretrained_model").mkdir(parents=True)
+    (checkpoints / "last").symlink_to("000100")  # an intermediate checkpoint: the run is still training
+    assert not finished(tmp_path, 500)
+    (checkpoints / "last").unlink()
+    (checkpoints / "last").symlink_to("000500")
+    assert finished(tmp_path, 500) and not finished(tmp_path, 1000)
+
+
 def _identical(a: torch.nn.Module, b: torch.nn.Module) -> bool:
     sa, sb = a.state_dict(), b.state_dict()
     return sa.keys() == sb.keys() and all(torch.equal(v, sb[k]) for k, v in sa.items())
@@ -95,6 +122,7 @@ def _identical(a: torch.nn.Module, b: torch.nn.Module) -> bool:
 
 @pytest.mark.slow
 def test_tiny_sequence_runs_every_method_through_the_real_clis(tiny_pool):
+    from lerobot_kvm.benchmark.continual import CHECKPOINT, SELECTION, stage_checkpoint
     from lerobot_kvm.policy import CodaKvmPolicy
 
     out = tiny_pool["out"]
@@ -112,14 +140,24 @@ def test_tiny_sequence_runs_every_method_through_the_real_clis(tiny_pool):
 
     # Each stage learned in new components: earlier components and the frozen backbone stay bit-identical.
     assert len(list((out / "pretrain").glob("act-*"))) == 1  # ACT's two modes share their pretraining run
-    pretrained, first, second = (
-        CodaKvmPolicy.from_pretrained(next(out.glob(f"{stage}*/train/checkpoints/last/pretrained_model")))
-        for stage in ("pretrain/coda_kvm-", "coda_kvm/stage_0", "coda_kvm/stage_2")
-    )
+    stages = sorted((out / "coda_kvm").glob("stage_*"), key=lambda p: int(p.name.split("_")[1]))
+    pretrained = CodaKvmPolicy.from_pretrained(next(out.glob(f"pretrain/coda_kvm-*/train/{CHECKPOINT}")))
+    first, second = (CodaKvmPolicy.from_pretrained(stage_checkpoint(stages[k], True)) for k in (0, 2))
     assert [s.name for s in second.skills] == ["pretrain", *results["tasks"]]
     assert _identical(pretrained.pool.tasks[0], second.pool.tasks[0])
     assert _identical(first.pool.tasks[1], second.pool.tasks[1])
     assert _identical(pretrained.backbone, second.backbone)
+
+    # Every trained stage scored each saved checkpoint by rollouts, and the next stage began from the one selected.
+    for k, stage in enumerate(stages):
+        choice = json.loads((stage / SELECTION).read_text())
+        assert [c["step"] for c in choice["checkpoints"]] == ["000001", "000002"]
+        assert choice["selected"] in ("000001", "000002")
+        assert all(c["episodes"] == 1 and c["success"] + c["catastrophe"] <= 1 for c in choice["checkpoints"])
+        if k:
+            config = json.loads((stage / "train" / CHECKPOINT / "config.json").read_text())
+            assert Path(config["pretrained_path"]) == stage_checkpoint(stages[k - 1], True)
+    assert (out / "act_sequential" / stages[0].name / SELECTION).exists()  # a peer's stages are selected the same way
 
     # A second invocation resumes: every stage and evaluation is found on disk and nothing is retrained.
     assert "lerobot-train" not in tiny_pool["run"](tiny_pool["cmd"], 600).stdout

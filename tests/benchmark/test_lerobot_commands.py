@@ -48,6 +48,11 @@ def test_training_and_evaluation_run_the_policy_on_the_named_device():
         assert _flag(eval_command(Path("p"), Path("out"), "book", "prior", 2, 0, **kwargs), "policy.device") == device
 
 
+def test_a_run_saves_at_its_end_or_every_save_every_steps():
+    assert _flag(train_command(Path("data"), "local/x", Path("out"), 500, 4, 0), "save_freq") == "500"
+    assert _flag(train_command(Path("data"), "local/x", Path("out"), 500, 4, 0, save_every=100), "save_freq") == "100"
+
+
 def _alive(pid: int) -> bool:
     """Running (a zombie waiting to be reaped has finished)."""
     stat = Path(f"/proc/{pid}/stat")
