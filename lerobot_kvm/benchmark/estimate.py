@@ -15,7 +15,9 @@ from .continual import MethodSpec, SequenceConfig
 # Diffusion Policy from its measured step (docs/benchmark.md, Cost).
 TRAIN_STEP_S = {"coda_kvm": 0.33, "act": 0.31, "diffusion": 0.43}
 EVAL_EPISODE_S = 1.0  # one `lerobot-eval` episode of a sequence's evaluation after a stage
-SELECT_EPISODE_S = 0.2  # one episode scoring a stage's saved checkpoint (in process, no `lerobot-eval` start-up)
+# One episode scoring a stage's saved checkpoint, in process (no `lerobot-eval` start-up): the default pool's 1200
+# selection episodes took 244 s with their checkpoint loads (2026-11-30).
+SELECT_EPISODE_S = 0.2
 RECORD_EPISODE_S = 0.3  # one scripted-expert episode recorded into the sequence's dataset (when it is absent)
 # Seconds per challenge unit (one scenario in one pass: attempts, feedback, controls, probes) by method, one worker.
 UNIT_S = {"act": 25.6, "diffusion": 75.0, "no_energy_model": 11.2, "no_smart_gate": 9.2, "coda_prompt": 5.1}
