@@ -12,10 +12,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from ..envs.env import KvmObsolescenceEnv
-from .rollouts import load_checkpoint, run_attempt
+from ..policy.feedback import skill_by_name
+from .rollouts import load_checkpoint, run_attempt, skill_alone
 
 # Selection episodes start here: apart from the recording (0..), the sequence's evaluation (100000..), the
 # benchmark (200000..) and the forced-skill matrix (300000..).
@@ -42,10 +41,10 @@ def rollout_score(
     policy, pre, post = load_checkpoint(checkpoint, kvm={"enabled": False}, device=device)
     weights = None
     if hasattr(policy, "skills"):
-        index = next((s.index for s in policy.skills if s.name == skill), None)
+        index = skill_by_name(policy, skill)
         if index is None:
             raise ValueError(f"{checkpoint} has no skill {skill!r}")
-        weights = torch.nn.functional.one_hot(torch.tensor([index]), policy.n_skills).float().to(device)
+        weights = skill_alone(policy, index)
     env = KvmObsolescenceEnv(scenario, variant=variant, instruction=instruction)
     try:
         outcomes = [

@@ -77,6 +77,12 @@ def load_checkpoint(
     return policy, pre, post
 
 
+def skill_alone(policy: Any, index: int) -> Tensor:
+    """[1, S] skill weights of a `coda_kvm` policy with one skill at 1 and every other at 0 (the skill forced
+    alone), on the policy's device."""
+    return torch.nn.functional.one_hot(torch.tensor([index]), policy.n_skills).float().to(policy.config.device)
+
+
 def observation_batch(observation: dict[str, Any], task: str) -> dict[str, Any]:
     """One environment observation in LeRobot's policy format (before the policy's preprocessor)."""
     from lerobot.envs.utils import preprocess_observation

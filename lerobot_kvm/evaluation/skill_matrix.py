@@ -19,7 +19,7 @@ import torch
 
 from ..envs.catalogue import SCENARIO_INFOS, scenario_info
 from ..envs.env import KvmObsolescenceEnv
-from .rollouts import run_attempt
+from .rollouts import run_attempt, skill_alone
 
 CORE = "core (KVM off)"
 
@@ -49,11 +49,8 @@ def skill_matrix(
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     columns = [(s, v) for s in scenarios for v in scenario_info(s).variants]
-    n = policy.n_skills
-    device = policy.config.device
-    forced: list[tuple[str, torch.Tensor | None]] = [  # one-hot: the skill's own prompt
-        (skill.name, torch.nn.functional.one_hot(torch.tensor([skill.index]), n).float().to(device))
-        for skill in policy.skills
+    forced: list[tuple[str, torch.Tensor | None]] = [
+        (skill.name, skill_alone(policy, skill.index)) for skill in policy.skills
     ]
     forced.append((CORE, None))  # the policy is loaded with the KVM off: its own routing
     rows = [{"skill": name, "cells": {}} for name, _ in forced]
