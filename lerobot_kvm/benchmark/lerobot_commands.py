@@ -16,6 +16,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 POLL_S = 5.0  # how often a running command is checked
+# How long a command may outlive its completed work (`run_logged`): a `lerobot-train` stage exits 3-4 s after its
+# final checkpoint, and a rank that hangs in the teardown instead held a tiny pool's build 120 s each time.
+TEARDOWN_GRACE_S = 30.0
 LOADER_WORKERS = 1  # DataLoader workers of a single-process `lerobot-train`
 PR_SET_PDEATHSIG = 1  # prctl(2): the signal the calling process gets when its parent dies
 
@@ -47,7 +50,10 @@ def program_name(cmd: Sequence[str]) -> str:
 
 
 def run_logged(
-    cmd: Sequence[str], log: Path | None = None, done: Callable[[], bool] | None = None, grace_s: float = 120.0
+    cmd: Sequence[str],
+    log: Path | None = None,
+    done: Callable[[], bool] | None = None,
+    grace_s: float = TEARDOWN_GRACE_S,
 ) -> None:
     """Run `cmd`, printing it first; with `log`, its output goes to that file (quoted on failure).
 
