@@ -185,13 +185,16 @@ class KnowledgeValidityModule(nn.Module):
         active: Tensor,
         all_active: bool | None = None,
         corrections: tuple[Tensor, Tensor] | None = None,
+        held: Tensor | None = None,
     ) -> tuple[Tensor, KvmStepTelemetry]:
         """Eq. 3's decision weights w [B, S] for the pool and the step's telemetry (Algorithm 1, lines 5-20).
 
         sensed [B, C] normalized context, query [B, D_q], alphas [B, S] the CL core's per-skill relevance, active
-        [S] bool (not pruned), corrections: knowledge-gap skills (`CodaPromptPool.corrections`). Where the gate is
-        closed every v is 1 and w is the relevance over the candidates; the gate-closed path costs E_c and the gate
-        test only. `telemetry.abstained` marks rows where every candidate is suppressed.
+        [S] bool (not pruned), corrections: knowledge-gap skills (`CodaPromptPool.corrections`), held [B, S] bool:
+        suppressions an earlier step of the attempt holds (`KvmStepTelemetry.held`; v = 0 there, gate open or
+        not). Where the gate is closed every other v is 1 and w is the relevance over the candidates; the
+        gate-closed path costs E_c and the gate test only. `telemetry.abstained` marks rows where every candidate
+        is suppressed.
         """
         cfg = self.config
         self.gate.ensure_fresh(self.encoder, self.gate_memory)
@@ -217,6 +220,8 @@ class KnowledgeValidityModule(nn.Module):
         anywhere, everywhere = _spread(gate)
         if cfg.force_validity is None and not anywhere:  # closed: v = 1 for every skill in force
             v = active.to(sigma2.dtype).expand(sigma2.shape[0], -1)
+            if held is not None:
+                v = v.masked_fill(held, 0.0)
             weights = decision_weights(v, alphas, candidate)
             if corrections is not None:
                 weights = weights.masked_fill(corrections[0], 0.0)
@@ -239,6 +244,8 @@ class KnowledgeValidityModule(nn.Module):
                 v = v.masked_fill(~assessed, 1.0)
                 invalid = invalid & assessed
         off = invalid if all_active else invalid | ~active.unsqueeze(0)
+        if held is not None:
+            off = off | held
         v = v.masked_fill(off, 0.0)
         mirror = None
         if corrections is not None:

@@ -106,6 +106,14 @@ class KvmStepTelemetry:
         suppressed = self.candidate & (self.validity < TAU_V)
         return suppressed if self.mirrored is None else suppressed & ~self.mirrored
 
+    def held(self, necessity: float) -> Tensor:
+        """[B, S] bool: the interventions an attempt holds to its end: those on a skill the task relies on
+        (normalised relevance above `necessity`, App. D's tau_high). The hidden property that made the skill
+        obsolete (the stuck drawer, the paperback) stays for the whole attempt, but the contexts the hand-over
+        produces were never judged for that skill: judged afresh at every step, it was valid again one step
+        after it was suppressed and resumed into the harm (docs/measurements.md, a suppression held)."""
+        return self.intervention & (self.relevance > necessity)
+
     @property
     def abstained(self) -> Tensor:
         """[B] bool: every candidate suppressed; the policy held instead of acting (see `fusion.abstains`)."""

@@ -3,8 +3,9 @@ VLA-style backbone that predicts action chunks (L1 on normalized actions, ACT-st
 
 The Knowledge Validity Module (`lerobot_kvm.kvm`, attribute `kvm`) supervises the skills at inference: every
 model call of `select_action` / `predict_action_chunk` assesses the sensed context (E_c, smart gate, energy
-model) and fuses the skill prompts with the resulting weights (eqs. 2-4); where every candidate skill is suppressed
-the policy abstains safely (`policy.abstention`). It learns offline inside `forward()` during `lerobot-train` and
+model) and fuses the skill prompts with the resulting weights (eqs. 2-4); a suppression of the skill the task relies
+on holds to the end of the attempt (`reset()`), and where every candidate skill is suppressed the policy abstains
+safely (`policy.abstention`). It learns offline inside `forward()` during `lerobot-train` and
 online through `kvm_feedback()`. With `config.kvm.enabled=False` the policy is the CODA-Prompt core: the same fusion
 with every v = 1. Explicit skill weights [B, n_skills] passed to `forward`, `predict_action_chunk` or `select_action`
 bypass the KVM (one-hot weights force that skill alone). `forward` trains the skill being learned under its own
@@ -270,6 +271,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
         self._kvm_trace = KvmTrace()
         self._kvm_telemetry = None
         self._queued_interventions: Tensor | None = None
+        self._held: Tensor | None = None  # [B, S] suppressions held to the attempt's end (`KvmStepTelemetry.held`)
         self._last_action = None
 
     def forward(
@@ -462,6 +464,7 @@ class CodaKvmPolicy(PreTrainedPolicy):
                 None,
             )
         n = self.n_skills
+        held = self._held if self._held is not None and self._held.shape == relevance.shape else None
         weights, telemetry = self.kvm.assess(
             batch[self.config.context_key],
             query,
@@ -469,7 +472,11 @@ class CodaKvmPolicy(PreTrainedPolicy):
             self.kvm.metabolism.active(n),
             self.kvm.metabolism.all_active(n),
             self.pool.corrections(),
+            held,
         )
+        now = telemetry.held(self.config.kvm.tau_high) if telemetry.gate.any() else None
+        if now is not None and bool(now.any()):
+            self._held = now if held is None else held | now
         return alphas, weights, telemetry
 
     def _infer(self, batch: dict[str, Any], skill_weights: Tensor | None) -> tuple[Tensor, KvmStepTelemetry | None]:

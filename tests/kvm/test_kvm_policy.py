@@ -14,7 +14,7 @@ from lerobot_kvm.kvm.energy import GAMMA, L0
 from lerobot_kvm.kvm.fusion import candidates, decision_weights
 from lerobot_kvm.kvm.losses import ENERGY_MARGIN
 from lerobot_kvm.kvm.metabolism import METABOLISM_WINDOW, PRUNE_THRESHOLD
-from lerobot_kvm.kvm.telemetry import TAU_V
+from lerobot_kvm.kvm.telemetry import TAU_V, KvmStepTelemetry
 from lerobot_kvm.policy import CodaKvmConfig
 
 CONTEXT = "observation.context"
@@ -193,9 +193,52 @@ def test_with_the_gate_open_a_suppression_replans_within_one_step(make_policy, m
     policy.kvm.set_gate_override("open")
     policy.select_action(batch)  # a new chunk, assessed with the gate open
     assert len(policy._action_queue) == 1 and policy.kvm_telemetry.intervention.any()
-    policy.config.kvm.force_validity = 1.0  # valid again: the next step replans at once
+    policy.reset()  # a new attempt
+    policy.config.kvm.force_validity = 1.0
     policy.select_action(batch)
-    assert len(policy._action_queue) == 1 and not policy.kvm_telemetry.intervention.any()
+    policy.config.kvm.force_validity = 0.0  # suppressed from the next step: it replans at once
+    policy.select_action(batch)
+    assert len(policy._action_queue) == 1 and policy.kvm_telemetry.intervention.any()
+
+
+def test_only_a_suppression_of_the_skill_the_task_relies_on_is_held() -> None:
+    alpha = torch.tensor([[1.0, 0.5, 1e-4]])  # every skill a candidate; only skill 0 above tau_high's share
+    held = [
+        KvmStepTelemetry(
+            sigma2=torch.ones(1),
+            tau=torch.tensor(0.0),
+            gate=torch.ones(1, dtype=torch.bool),
+            alpha=alpha,
+            active=torch.ones(3, dtype=torch.bool),
+            validity=torch.tensor([v]),
+        ).held(0.8)
+        for v in ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.05, 1.0, 1.0])
+    ]
+    assert [h.tolist() for h in held] == [[[True, False, False]], [[False, False, False]], [[True, False, False]]]
+
+
+def test_a_suppression_of_the_skill_the_task_relies_on_holds_to_the_end_of_the_attempt(
+    make_policy, make_batch, make_kvm_config
+) -> None:
+    policy = two_skill_policy(make_policy, kvm=make_kvm_config(force_validity=1.0))
+    batch = make_batch(policy.config, batch_size=1, with_action=False)
+    policy.kvm.set_gate_override("open")
+    policy.select_action(batch)
+    relied = policy.kvm_telemetry.relevance > policy.config.kvm.tau_high
+    assert relied.any()
+    policy.config.kvm.force_validity = 0.0
+    policy.select_action(batch)
+    policy.config.kvm.force_validity = 1.0  # judged valid again from now on
+    for gate in ("open", "closed"):
+        policy.kvm.set_gate_override(gate)
+        policy._action_queue.clear()  # a new chunk: assessed under either gate state
+        policy.select_action(batch)
+        tele = policy.kvm_telemetry
+        assert torch.equal(tele.intervention, relied) and torch.equal(tele.validity == 0, relied)
+        assert torch.equal(tele.skill_weight > 0, ~relied)
+    policy.reset()  # the next attempt judges afresh
+    policy.select_action(batch)
+    assert not policy.kvm_telemetry.intervention.any()
 
 
 def test_one_rows_replan_leaves_the_other_rows_chunks(make_policy, make_batch, make_kvm_config) -> None:
@@ -408,6 +451,7 @@ def test_the_novelty_detector_suppresses_every_skill_where_the_gate_opens(make_p
     policy.predict_action_chunk(batch)
     tele = policy.kvm_telemetry
     assert (tele.validity < TAU_V).all() and tele.abstained.all()  # novel: nothing is trusted, the policy holds
+    policy.reset()  # another attempt (within one, the suppression holds)
     policy.kvm.set_gate_override("closed")
     chunk = policy.predict_action_chunk(batch)
     assert not policy.kvm_telemetry.abstained.any() and torch.equal(chunk, core_chunk(policy, batch))
