@@ -62,7 +62,9 @@ class KvmConfig:
     # spread of the culprit's safe experience until its end (docs/measurements.md, departure rule); None: off.
     departure_radius: float | None = 2.0
     hypothesis_capacity: int = 64  # App. D: open and confirmed risk hypotheses kept
-    tau_high: float = 0.8  # App. D, App. E: an intervention is necessary when normalised alpha_i > tau_high
+    # App. D, App. E: an intervention is necessary when normalised alpha_i > tau_high; such a suppression holds to
+    # the end of the attempt (`KvmStepTelemetry.held`, docs/measurements.md)
+    tau_high: float = 0.8
     similarity: float = 0.9  # App. D: cosine similarity of mu_c that makes a context similar to a hypothesis's
     gap_alpha: float = 0.5  # App. D knowledge gap: every alternative's normalised relevance stays below this
     # App. D: a failure with a corrective demonstration tests the knowledge gap at once (with every alternative

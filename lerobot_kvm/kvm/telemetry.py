@@ -111,7 +111,8 @@ class KvmStepTelemetry:
         (normalised relevance above `necessity`, App. D's tau_high). The hidden property that made the skill
         obsolete (the stuck drawer, the paperback) stays for the whole attempt, but the contexts the hand-over
         produces were never judged for that skill: judged afresh at every step, it was valid again one step
-        after it was suppressed and resumed into the harm (docs/measurements.md, a suppression held)."""
+        after it was suppressed and resumed into the harm (docs/measurements.md, "A suppression of the relied-on
+        skill held for the attempt")."""
         return self.intervention & (self.relevance > necessity)
 
     @property
