@@ -10,11 +10,12 @@ gate's window), summed (the query part weighted by `query_weight`):
 
     sigma_c^2 = r_sensed / s_sensed + query_weight * r_query / s_query
 
-so that neither modality drowns the other (contact transients make the sensed residual heavy-tailed; a
-memorised instruction reconstructs almost exactly, so an unfamiliar one stands out by orders of magnitude).
+so that neither modality drowns the other (contact transients make the sensed residual heavy-tailed).
 The decoder learns only from routine safe contexts (on the raw residual r_sensed + query_weight * r_query),
-so sigma_c^2 stays low on the safe experience and rises when the interaction leaves it (unfamiliar forces,
-an unfamiliar object or instruction): the novelty signal the smart gate (eq. 1) thresholds.
+so sigma_c^2 stays low on the safe experience and rises when the interaction leaves it (unfamiliar forces, an
+unfamiliar object): the novelty signal the smart gate (eq. 1) thresholds. An unfamiliar instruction is not
+reliably one: a 32-dimensional code reconstructs a sentence near a known one about as well as the known ones
+(docs/measurements.md), so the smart gate tests the instruction itself against the safe experience's.
 """
 
 import math

@@ -11,6 +11,13 @@ sigma^2 give tau. So tau always describes the safe experience as the encoder see
 mean/std/tau are persistent buffers. With fewer than `min_count` interactions there are no statistics yet and the
 gate stays open (assess always).
 
+The instruction is the one modality whose safe values form a short list: the query q(x) of each instruction the
+safe references hold. E_c reconstructs a new instruction about as well as a known one when their sentences are
+alike ("pick up the egg", "pick up the stone"), and its residual is small beside the contact transients that set
+tau; so the query part of sigma_c^2 is made exact here: under an instruction that no safe reference holds (q(x)
+at cosine below `FAMILIAR_COSINE` from each of theirs) the gate is open at every step, whatever the sensed part
+reads. A learner that has never succeeded under an instruction has no safe experience of it.
+
 `similar` is the test that matches a context to a failure hypothesis (App. D): centred cosine similarity of the
 codes mu_c at least `kvm.similarity`.
 """
@@ -21,6 +28,9 @@ from torch import Tensor, nn
 
 from .context_encoder import ContextEncoder, GateProbe
 from .memory import ROUTINE, SampleBuffer
+
+# Two queries this close are one instruction (the same text, encoded on another device or in another precision).
+FAMILIAR_COSINE = 0.9999
 
 
 def adaptive_threshold(sigma2: Tensor, k: float) -> tuple[Tensor, Tensor, Tensor]:
@@ -51,6 +61,9 @@ class SmartGate(nn.Module):
         self.tau_value = float("-inf")  # runtime cache of stats[0] as a Python float
         self.similarity = similarity
         self.center: Tensor | None = None  # runtime cache: mean code of the safe references
+        self._queries: Tensor | None = None  # runtime cache: the safe references' query part (scaled q(x))
+        self._known: Tensor | None = None  # runtime cache: their distinct instructions, unit rows
+        self._last: tuple[Tensor, Tensor | None] | None = None  # runtime cache: the last query, its `novel`
         self.register_load_state_dict_post_hook(SmartGate._after_load)
 
     @staticmethod
@@ -79,6 +92,8 @@ class SmartGate(nn.Module):
         """Recompute the residual scales and (tau, mean, std) from the safe references with the current encoder."""
         reference = self.reference(memory)
         self.center = None
+        self._queries = reference[:, encoder.sensed_dim :] if encoder.query_dim else None
+        self._known, self._last = None, None
         if len(reference) < max(self.min_count, 1):
             self.scale.fill_(1.0)
             stats = torch.tensor([float("-inf"), 0.0, 0.0])
@@ -108,6 +123,21 @@ class SmartGate(nn.Module):
         center = self.center if self.center is not None else ref.mean(0)
         sims = F.normalize(mu - center, dim=-1) @ F.normalize(ref - center, dim=-1).T
         return sims.amax(-1) >= self.similarity
+
+    def novel(self, query: Tensor) -> Tensor | None:
+        """[B] bool: queries q(x) [B, D_q] of an instruction no safe reference holds; None where every row's is
+        known, there are no statistics yet (the gate is open anyway) or no query (call after ensure_fresh)."""
+        if self._queries is None or not len(self._queries) or self.tau_value == float("-inf"):
+            return None
+        last = self._last
+        if last is not None and last[0].shape == query.shape and torch.equal(last[0], query):
+            return last[1]
+        if self._known is None:
+            self._known = torch.unique(F.normalize(self._queries, dim=-1), dim=0)
+        novel = (F.normalize(query.to(self._known), dim=-1) @ self._known.T).amax(-1) < FAMILIAR_COSINE
+        answer = novel if bool(novel.any()) else None
+        self._last = (query.clone(), answer)
+        return answer
 
     def ensure_fresh(self, encoder: ContextEncoder, memory: SampleBuffer | None = None) -> None:
         if self.stale:

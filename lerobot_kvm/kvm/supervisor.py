@@ -213,6 +213,10 @@ class KnowledgeValidityModule(nn.Module):
             gate = None
         else:
             gate = self.gate_open(sigma2)
+        if query is not None and self.gate_override is None and cfg.smart_gate:
+            novel = self.gate.novel(query)  # an instruction with no safe experience: assess at every step
+            if novel is not None:
+                gate = novel if gate is None else gate | novel
         if all_active is None:
             all_active = bool(active.all())
         candidate = candidates(alphas, active)

@@ -25,6 +25,8 @@ def test_eq1_adaptive_threshold_is_mean_plus_k_population_std() -> None:
 class _FirstColumnIsTheResidual(nn.Module):
     """A stand-in encoder: one modality whose mean squared residual is the first column of the raw context."""
 
+    sensed_dim, query_dim = 2, 0
+
     def forward(self, c_raw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return c_raw, c_raw[:, :1]
 
@@ -74,6 +76,25 @@ def test_sigma2_is_the_residual_of_each_modality_in_units_of_its_safe_scale() ->
     torch.testing.assert_close(((c_raw - recon) ** 2) @ enc.dim_weights(scale), enc.sigma2(parts, scale))
     torch.testing.assert_close(parts[0, 0], ((c_raw - recon)[0, :2] ** 2).mean())
     torch.testing.assert_close(parts[0, 1], ((c_raw - recon)[0, 2:] ** 2).mean())
+
+
+def test_the_gate_opens_under_an_instruction_no_safe_reference_holds() -> None:
+    """The query part is exact: a known instruction (up to scale and float noise) leaves the decision to sigma^2,
+    an unknown one opens the gate on its rows only."""
+    torch.manual_seed(0)
+    enc = ContextEncoder(sensed_dim=3, query_dim=4, hidden=[8], latent_dim=2, use_query=True, query_weight=1.0)
+    gate = SmartGate(window=16, raw_dim=7, k=1.0, min_count=4, n_parts=2)
+    stone, egg = torch.tensor([1.0, 0.0, 0.5, 0.0]), torch.tensor([1.0, 0.1, 0.5, 0.0])
+    assert gate.novel(egg.unsqueeze(0)) is None  # no references yet: no statistics, the gate is open anyway
+    gate.push(enc.raw_context(torch.randn(6, 3), stone.expand(6, -1)))
+    gate.ensure_fresh(enc)
+    assert gate.novel(stone.unsqueeze(0)) is None
+    assert gate.novel((stone * 3 + 1e-6).unsqueeze(0)) is None  # the same instruction, scaled, in other bits
+    assert gate.novel(torch.stack([stone, egg, stone])).tolist() == [False, True, False]
+    assert gate.novel(egg.unsqueeze(0)).tolist() == [True]  # cosine 0.996: another instruction
+    gate.push(enc.raw_context(torch.randn(6, 3), egg.expand(6, -1)))  # the egg met safely: known from now on
+    gate.ensure_fresh(enc)
+    assert gate.novel(egg.unsqueeze(0)) is None
 
 
 @pytest.mark.parametrize(("hidden", "use_query"), [([8, 6], True), ([8], True), ([8, 6, 5], False)])

@@ -18,6 +18,7 @@ from lerobot_kvm.kvm.telemetry import TAU_V, KvmStepTelemetry
 from lerobot_kvm.policy import CodaKvmConfig
 
 CONTEXT = "observation.context"
+STONE, EGG = "pick up the stone", "pick up the egg"
 
 
 def core_chunk(policy, batch, skill_weights=None):
@@ -180,6 +181,19 @@ def test_risk_model_and_smart_gate_switch_on_the_same_weights(make_policy, make_
     policy.kvm.gate.push(torch.zeros(64, policy.kvm.encoder.raw_dim))  # statistics exist now
     policy.predict_action_chunk(batch)
     assert policy.kvm_telemetry.gate.all()
+
+
+def test_an_instruction_without_safe_experience_opens_the_gate_on_its_rows(make_policy, make_batch) -> None:
+    policy = two_skill_policy(make_policy)
+    kvm = policy.kvm
+    kvm.gate.k = 1e6  # tau far above any sigma^2: only the instruction can open the gate
+    stone = policy.encode_query([STONE]).expand(64, -1)
+    kvm.gate.push(kvm.raw_context(torch.rand(64, policy.config.input_features[CONTEXT].shape[0]), stone))
+    policy.predict_action_chunk(make_batch(policy.config, task=STONE, with_action=False))
+    assert not policy.kvm_telemetry.gate.any()
+    policy.predict_action_chunk(make_batch(policy.config, task=[STONE, EGG, EGG, STONE], with_action=False))
+    tele = policy.kvm_telemetry
+    assert tele.gate.tolist() == [False, True, True, False] and torch.isfinite(tele.energy[1:3]).all()
 
 
 def test_with_the_gate_open_a_suppression_replans_within_one_step(make_policy, make_batch, make_kvm_config) -> None:
