@@ -391,7 +391,7 @@ class ContinualRun:
                     list(extra),
                     self.device,
                 )
-                run_logged(cmd, eval_dir / f"{variant}_{instruction}.log", done=info_path.exists)
+                run_logged(cmd, eval_dir / f"{variant}_{instruction}.log")
             info = json.loads(info_path.read_text())
             per_task = {entry["task_group"]: entry["metrics"] for entry in info["per_task"]}
             for task in members:

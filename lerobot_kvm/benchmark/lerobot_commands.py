@@ -17,8 +17,7 @@ from pathlib import Path
 
 POLL_S = 5.0  # how often a running command is checked
 # How long a command may outlive its completed work (`run_logged`): a `lerobot-train` stage exits 3-4 s after its
-# final checkpoint and a `lerobot-eval` as soon after its `eval_info.json`; a rank hanging in the teardown held a
-# tiny pool's build 120 s each time, and one `lerobot-eval` hung 222 s at exit after "End of eval".
+# final checkpoint, and a rank that hangs in the teardown instead held a tiny pool's build 120 s each time.
 TEARDOWN_GRACE_S = 30.0
 LOADER_WORKERS = 1  # DataLoader workers of a single-process `lerobot-train`
 PR_SET_PDEATHSIG = 1  # prctl(2): the signal the calling process gets when its parent dies
@@ -58,11 +57,10 @@ def run_logged(
 ) -> None:
     """Run `cmd`, printing it first; with `log`, its output goes to that file (quoted on failure).
 
-    `done` tells when the command's work is complete (e.g. its final checkpoint or its `eval_info.json` is
-    written). A command still running `grace_s` seconds after that is stopped with its whole process group and
-    counts as finished: under a multi-process launcher a rank can hang in the process-group teardown after training
-    has ended (gloo's `destroy_process_group`), and an evaluation can hang at interpreter exit, which would
-    otherwise block the pipeline."""
+    `done` tells when the command's work is complete (e.g. its final checkpoint is written). A command still
+    running `grace_s` seconds after that is stopped with its whole process group and counts as finished: under a
+    multi-process launcher a rank can hang in the process-group teardown after training has ended (gloo's
+    `destroy_process_group`), which would otherwise block the pipeline forever."""
     print("\n$ " + shlex.join(cmd), flush=True)
     if log is None:
         subprocess.run(list(cmd), check=True)
