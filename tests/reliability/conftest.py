@@ -1,6 +1,8 @@
-"""A small `coda_kvm` checkpoint on disk, the thing users hand to `from_pretrained` and `lerobot-eval`."""
+"""A small `coda_kvm` checkpoint on disk, the thing users hand to `from_pretrained` and `lerobot-eval`; and
+`lerobot-kvm` run in this process, for the refusals it must make before anything starts."""
 
 import shutil
+import signal
 from collections.abc import Callable
 from pathlib import Path
 
@@ -57,3 +59,25 @@ def files_of(directory: Path) -> dict[str, bytes]:
 @pytest.fixture
 def snapshot() -> Callable[[Path], dict[str, bytes]]:
     return files_of
+
+
+@pytest.fixture
+def cli(capsys) -> Callable[..., tuple[int, str]]:
+    """`lerobot-kvm ARGS` run in this process (its `main`, as the console script calls it): (exit code, stderr).
+
+    A refusal is decided before any simulator or training starts, so the only thing a subprocess would add is
+    the 6-8 s of importing torch and LeRobot again; the console script itself is run in tests/cli/test_main.py."""
+    from lerobot_kvm.cli.main import main
+
+    def run(*args: str) -> tuple[int, str]:
+        capsys.readouterr()
+        handler = signal.getsignal(signal.SIGTERM)
+        try:
+            code = main(list(args))
+        except SystemExit as stop:  # argparse's own refusals
+            code = stop.code
+        finally:
+            signal.signal(signal.SIGTERM, handler)  # `main` makes SIGTERM unwind like Ctrl-C; pytest's stays
+        return code, capsys.readouterr().err
+
+    return run

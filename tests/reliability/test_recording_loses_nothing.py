@@ -9,8 +9,6 @@ import pytest
 
 from lerobot_kvm.datasets.recorder import RecordingSpec, RecordItem, checked_root, record_dataset
 
-CLI = str(Path(sys.executable).parent / "lerobot-kvm")
-
 
 def one_episode() -> RecordingSpec:
     return RecordingSpec(name="one", items=[RecordItem("egg_vs_stone", "prior", "firm_grasp", 1)])
@@ -21,21 +19,14 @@ def _tree(path: Path) -> set[str]:
 
 
 @pytest.mark.parametrize("target", [".", "..", "~", "/"])
-def test_overwrite_refuses_directories_that_hold_the_work(tmp_path, monkeypatch, target):
+def test_overwrite_refuses_directories_that_hold_the_work(tmp_path, monkeypatch, cli, target):
     work = tmp_path / "work"
     work.mkdir()
     (work / "notes.txt").write_text("mine")
     monkeypatch.chdir(work)
     before = _tree(tmp_path)
-    result = subprocess.run(
-        [CLI, "record", "--scenarios", "egg_vs_stone", "--episodes", "1", "--root", target, "--overwrite"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert result.returncode == 2
-    assert "refusing to record over a directory holding this one" in result.stderr
-    assert "Traceback" not in result.stderr
+    code, stderr = cli("record", "--scenarios", "egg_vs_stone", "--episodes", "1", "--root", target, "--overwrite")
+    assert code == 2 and "refusing to record over a directory holding this one" in stderr
     assert _tree(tmp_path) == before  # nothing removed, nothing left behind
 
 
