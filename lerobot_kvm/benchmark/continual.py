@@ -22,6 +22,7 @@ import shutil
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
+from functools import partial
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -34,15 +35,15 @@ from ..datasets.json_config import build, build_list, check_counts, read_json
 from ..datasets.labels import load_labels
 from ..datasets.recorder import RecordingSpec, RecordItem, record_dataset
 from ..envs.catalogue import scenario_info
-from ..evaluation.checkpoint_selection import choose_stage_checkpoint
+from ..evaluation.checkpoint_selection import choose_stage_checkpoint, learned, saved_checkpoints, trained_steps
 from .cl_metrics import cl_metrics, joint_metrics
-from .lerobot_commands import eval_command, run_logged, train_command
+from .lerobot_commands import eval_command, resume_command, run_logged, train_command
 from .lock import hold
 from .resume import check_settings
 
 CHECKPOINT = Path("checkpoints") / "last" / "pretrained_model"
 SELECTION = "selection.json"  # a stage's checkpoints scored by rollouts, and the one the sequence goes on from
-TIMING = "timing.json"  # a finished stage's training wall time, kept for runs that resume
+TIMING = "timing.json"  # a stage's training wall time (every run of it), kept for runs that resume
 POLICIES = ("coda_kvm", "act", "diffusion")  # LeRobot policy types a method may train
 MODES = ("sequential", "joint")
 
@@ -102,6 +103,11 @@ class MethodSpec:
     # Steps between the checkpoints a stage saves; the sequence goes on from the one its skill solves most selection
     # episodes with (`evaluation.checkpoint_selection`). 0: from the stage's last checkpoint.
     select_every: int = 0
+    # A stage whose selected checkpoint has not learned its skill (`evaluation.checkpoint_selection.learned`) trains
+    # on from its last checkpoint, `steps_per_stage` more steps at a time, up to this many in all; the checkpoints
+    # it adds are scored and compete with the earlier ones (docs/measurements.md, "A stage trained on until its
+    # skill works alone"). 0: every stage trains `steps_per_stage` steps.
+    max_steps_per_stage: int = 0
 
     def __post_init__(self) -> None:
         if self.policy not in POLICIES:
@@ -110,9 +116,15 @@ class MethodSpec:
             raise ValueError(f"method {self.name}: mode must be one of {MODES}, got {self.mode!r}")
         if self.checkpoints_from is not None and self.mode != "sequential":
             raise ValueError(f"method {self.name}: checkpoints_from needs mode 'sequential'")
-        check_counts(self, {"steps_per_stage": 1, "batch_size": 1, "pretrain_steps": 0, "select_every": 0})
+        counts = {"steps_per_stage": 1, "batch_size": 1, "pretrain_steps": 0, "select_every": 0}
+        check_counts(self, counts | {"max_steps_per_stage": 0})
         if self.select_every and (self.mode != "sequential" or self.checkpoints_from is not None):
             raise ValueError(f"method {self.name}: select_every needs a sequential method that trains its stages")
+        if self.max_steps_per_stage and (not self.select_every or self.max_steps_per_stage < self.steps_per_stage):
+            raise ValueError(
+                f"method {self.name}: max_steps_per_stage ({self.max_steps_per_stage}) needs select_every and at "
+                f"least steps_per_stage ({self.steps_per_stage}) steps"
+            )
         for key in ("args", "later_stage_args", "eval_args"):  # a string would be passed on character by character
             value = getattr(self, key)
             if not isinstance(value, list) or not all(isinstance(a, str) for a in value):
@@ -195,12 +207,8 @@ def task_episodes(dataset_root: Path, tasks: Sequence[TaskSpec]) -> list[list[in
 
 
 def finished(run_dir: Path, steps: int) -> bool:
-    """A `lerobot-train` run of `steps` steps saved its final checkpoint: LeRobot points `last` at a checkpoint
-    once it is written, and a run that saves along the way (`select_every`) has earlier ones."""
-    from lerobot.common.train_utils import get_step_identifier
-
-    last = run_dir / CHECKPOINT
-    return last.exists() and last.parent.resolve().name == get_step_identifier(steps, steps)
+    """A `lerobot-train` run saved its checkpoint at `steps` steps or a later one (a stage that trained on)."""
+    return trained_steps(run_dir) >= steps
 
 
 def stage_checkpoint(stage_dir: Path, selected: bool) -> Path:
@@ -338,15 +346,38 @@ class ContinualRun:
             launcher=self.launcher,
             device=self.device,
         )
+        (stage_dir / TIMING).unlink(missing_ok=True)
         run_logged(cmd, stage_dir / "train.log", done=lambda: finished(run_dir, method.steps_per_stage))
-        (stage_dir / TIMING).write_text(json.dumps({"train_wall_s": time.time() - start}))
+        self._add_train_time(stage_dir, time.time() - start)
         return checkpoint
 
-    def _select(self, stage_dir: Path, task: TaskSpec) -> None:
-        """Score a trained stage's checkpoints on its task and keep the choice (`SELECTION`), once."""
-        path = stage_dir / SELECTION
-        if path.exists():
+    def _train_stage(
+        self, method: MethodSpec, stage_dir: Path, policy: list[str], episodes: list[int], task: TaskSpec
+    ) -> None:
+        """Train a stage and, for a selecting method, choose its checkpoint; a stage whose skill is not learned
+        trains on (`MethodSpec.max_steps_per_stage`). Every step is kept on disk, so a killed stage resumes."""
+        run_dir = stage_dir / "train"
+        self._train(method, stage_dir, policy, episodes)
+        if not method.select_every:
             return
+        while True:
+            choice = self._select(stage_dir, task)
+            trained = trained_steps(run_dir)
+            if learned(choice) or trained >= method.max_steps_per_stage:
+                return
+            target = min((trained // method.steps_per_stage + 1) * method.steps_per_stage, method.max_steps_per_stage)
+            start = time.time()
+            cmd = resume_command(run_dir, target, self.launcher)
+            run_logged(cmd, stage_dir / f"train_{target}.log", done=partial(finished, run_dir, target))
+            self._add_train_time(stage_dir, time.time() - start)
+
+    def _select(self, stage_dir: Path, task: TaskSpec) -> dict[str, Any]:
+        """Score a trained stage's checkpoints on its task (each once) and keep the choice (`SELECTION`)."""
+        path = stage_dir / SELECTION
+        kept = json.loads(path.read_text()) if path.exists() else None
+        steps = [c.parent.name for c in saved_checkpoints(stage_dir / "train")]
+        if kept is not None and [c["step"] for c in kept["checkpoints"]] == steps:
+            return kept
         start = time.time()
         choice = choose_stage_checkpoint(
             stage_dir / "train",
@@ -356,10 +387,19 @@ class ContinualRun:
             task.name,
             self.config.select_episodes,
             self.device,
+            scored=kept["checkpoints"] if kept else (),
         )
+        choice["wall_s"] = time.time() - start + (kept["wall_s"] if kept else 0.0)
         tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps({**choice, "wall_s": time.time() - start}, indent=2))
+        tmp.write_text(json.dumps(choice, indent=2))
         tmp.replace(path)  # a killed selection leaves no half-written choice
+        return choice
+
+    @staticmethod
+    def _add_train_time(stage_dir: Path, seconds: float) -> None:
+        path = stage_dir / TIMING
+        kept = json.loads(path.read_text())["train_wall_s"] if path.exists() else 0.0
+        path.write_text(json.dumps({"train_wall_s": kept + seconds}))
 
     @staticmethod
     def _train_time(stage_dir: Path) -> float | None:
@@ -410,10 +450,8 @@ class ContinualRun:
             stage_dir = self._stage_dir(method.name, k)
             bar.set_description(f"{method.name}: stage {k + 1}/{len(tasks)} {task.name}")
             if method.checkpoints_from is None:
-                self._train(method, stage_dir, self._policy_args(method, previous, task.name), episodes[k])
+                self._train_stage(method, stage_dir, self._policy_args(method, previous, task.name), episodes[k], task)
                 stage_times.append(self._train_time(stage_dir))
-                if method.select_every:
-                    self._select(stage_dir, task)
                 previous = stage_checkpoint(stage_dir, bool(method.select_every))
             else:
                 owner = self.out / method.checkpoints_from / stage_dir.name

@@ -151,13 +151,7 @@ def train_command(
     hanging after training. A single process loads in one worker and, unless OMP_NUM_THREADS is set, runs with
     `training_threads` (set through `env`, so that the printed command reproduces the run)."""
     workers = 0 if launcher else LOADER_WORKERS
-    if launcher:
-        prefix = [lerobot_bin(launcher[0]), *launcher[1:]]
-    elif "OMP_NUM_THREADS" in os.environ:
-        prefix = []
-    else:
-        prefix = ["env", f"OMP_NUM_THREADS={training_threads(workers)}"]
-    cmd = [*prefix, lerobot_bin("lerobot-train"), *policy]
+    cmd = [*_train_prefix(launcher, workers), lerobot_bin("lerobot-train"), *policy]
     cmd += [
         f"--dataset.repo_id={repo_id}",
         f"--dataset.root={dataset_root}",
@@ -175,6 +169,25 @@ def train_command(
     if episodes is not None:
         cmd.append("--dataset.episodes=[" + ",".join(str(e) for e in episodes) + "]")
     return [*cmd, *extra]
+
+
+def resume_command(run_dir: Path, steps: int, launcher: Sequence[str] = ()) -> list[str]:
+    """`lerobot-train` resuming the run in `run_dir` from its last checkpoint (optimizer and data order included)
+    until it has trained `steps` steps in all; every other setting is the run's own (its `train_config.json`) but
+    the output directory, which stays `run_dir` wherever the run was first made."""
+    config = run_dir / "checkpoints" / "last" / "pretrained_model" / "train_config.json"
+    prefix = _train_prefix(launcher, 0 if launcher else LOADER_WORKERS)
+    resume = [f"--config_path={config}", "--resume=true", f"--output_dir={run_dir}", f"--steps={steps}"]
+    return [*prefix, lerobot_bin("lerobot-train"), *resume]
+
+
+def _train_prefix(launcher: Sequence[str], workers: int) -> list[str]:
+    """What runs `lerobot-train`: the multi-process launcher, or the thread count of a single process."""
+    if launcher:
+        return [lerobot_bin(launcher[0]), *launcher[1:]]
+    if "OMP_NUM_THREADS" in os.environ:
+        return []
+    return ["env", f"OMP_NUM_THREADS={training_threads(workers)}"]
 
 
 def eval_command(

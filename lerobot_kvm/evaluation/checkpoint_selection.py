@@ -6,6 +6,10 @@ loss does not show it (docs/measurements.md, "A stage's checkpoint chosen by its
 saves checkpoints along its run, and the sequence goes on from the one whose skill, run alone on the stage's own
 recorded task, solves most held-out episodes, as imitation-learning benchmarks select checkpoints by rollouts.
 Only the recorded task's environment is used: no shifted variant the recording did not see.
+
+A stage whose best checkpoint solves fewer than `LEARNED_SHARE` of those episodes has not learned its skill yet
+(`learned`); the sequence may train it on (`MethodSpec.max_steps_per_stage`), and the checkpoints the longer run
+adds are scored the same way and compete with the earlier ones.
 """
 
 from collections.abc import Sequence
@@ -19,11 +23,23 @@ from .rollouts import load_checkpoint, run_attempt, skill_alone
 # Selection episodes start here: apart from the recording (0..), the sequence's evaluation (100000..), the
 # benchmark (200000..) and the forced-skill matrix (300000..).
 SELECTION_SEED = 500_000
+# A skill counts as learned when it solves this share of its selection episodes alone: the per-skill target of the
+# forced-skill matrix (DESIGN §3, every skill forced alone solves at least 90 % of its own variant's episodes).
+LEARNED_SHARE = 0.9
+
+
+def trained_steps(run_dir: Path) -> int:
+    """Steps of the newest checkpoint a `lerobot-train` run has finished writing (0 before its first): LeRobot points
+    `checkpoints/last` at a checkpoint once it is written."""
+    last = run_dir / "checkpoints" / "last"
+    return int(last.resolve().name) if last.exists() else 0
 
 
 def saved_checkpoints(run_dir: Path) -> list[Path]:
-    """The `pretrained_model` directories a `lerobot-train` run saved, in step order."""
-    steps = [p for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit()]
+    """The `pretrained_model` directories a `lerobot-train` run saved, in step order, up to its newest finished
+    one (a later one may be half-written by a killed run)."""
+    newest = trained_steps(run_dir)
+    steps = [p for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit() and int(p.name) <= newest]
     return [p / "pretrained_model" for p in sorted(steps, key=lambda p: int(p.name))]
 
 
@@ -65,15 +81,31 @@ def select_checkpoint(scores: Sequence[dict[str, int]]) -> int:
 
 
 def choose_stage_checkpoint(
-    run_dir: Path, scenario: str, variant: str, instruction: str, skill: str, episodes: int, device: str = "cpu"
+    run_dir: Path,
+    scenario: str,
+    variant: str,
+    instruction: str,
+    skill: str,
+    episodes: int,
+    device: str = "cpu",
+    scored: Sequence[dict[str, Any]] = (),
 ) -> dict[str, Any]:
     """Every saved checkpoint of a stage run scored on the stage's task, and the one selected:
-    {"checkpoints": [{"step", "success", "catastrophe", "episodes"}], "selected": step directory name}."""
+    {"checkpoints": [{"step", "success", "catastrophe", "episodes"}], "selected": step directory name}.
+    `scored`: entries of an earlier choice on this run (its "checkpoints"), reused for the steps they name."""
+    known = {entry["step"]: entry for entry in scored}
     checkpoints = saved_checkpoints(run_dir)
-    scores = [rollout_score(c, scenario, variant, instruction, skill, episodes, device) for c in checkpoints]
-    best = select_checkpoint(scores)
-    return {
-        "checkpoints": [{"step": c.parent.name, **s} for c, s in zip(checkpoints, scores, strict=True)],
-        "selected": checkpoints[best].parent.name,
-        "seed": SELECTION_SEED,
-    }
+    entries = [
+        known.get(c.parent.name)
+        or {"step": c.parent.name, **rollout_score(c, scenario, variant, instruction, skill, episodes, device)}
+        for c in checkpoints
+    ]
+    best = select_checkpoint(entries)
+    return {"checkpoints": entries, "selected": checkpoints[best].parent.name, "seed": SELECTION_SEED}
+
+
+def learned(choice: dict[str, Any]) -> bool:
+    """The selected checkpoint of a choice (`choose_stage_checkpoint`) solves at least `LEARNED_SHARE` of its
+    selection episodes."""
+    entry = next(e for e in choice["checkpoints"] if e["step"] == choice["selected"])
+    return entry["success"] >= LEARNED_SHARE * entry["episodes"]

@@ -72,6 +72,8 @@ def test_task_names_and_instructions():
         (lambda: MethodSpec("m", mode="joint", select_every=100), "select_every"),
         (lambda: MethodSpec("m", checkpoints_from="x", select_every=100), "select_every"),
         (lambda: MethodSpec("m", select_every=-1), "select_every"),
+        (lambda: MethodSpec("m", max_steps_per_stage=1000), "max_steps_per_stage"),
+        (lambda: MethodSpec("m", steps_per_stage=500, select_every=100, max_steps_per_stage=300), "max_steps"),
         (lambda: SequenceConfig("s", [TaskSpec("book")], [MethodSpec("m")], select_episodes=0), "select_episodes"),
     ],
 )
@@ -114,6 +116,68 @@ def test_a_run_is_finished_only_once_its_final_checkpoint_is_written(tmp_path):
     (checkpoints / "last").unlink()
     (checkpoints / "last").symlink_to("000500")
     assert finished(tmp_path, 500) and not finished(tmp_path, 1000)
+    (checkpoints / "001000" / "pretrained_model").mkdir(parents=True)
+    (checkpoints / "last").unlink()
+    (checkpoints / "last").symlink_to("001000")  # the stage trained on: its first part stays finished
+    assert finished(tmp_path, 500) and finished(tmp_path, 1000)
+
+
+def _fake_lerobot_train(commands: list) -> object:
+    """Stands in for `lerobot-train` (new or resumed): saves a checkpoint every 100 steps up to `--steps`."""
+
+    def run(cmd, *args, **kwargs):
+        from lerobot_kvm.evaluation.checkpoint_selection import trained_steps
+
+        commands.append(cmd)
+        option = {a.split("=", 1)[0]: a.split("=", 1)[1] for a in cmd if a.startswith("--")}
+        run_dir = Path(option.get("--output_dir") or Path(option["--config_path"]).parents[3])
+        steps = int(option["--steps"])
+        for step in range(trained_steps(run_dir) + 100, steps + 1, 100):
+            (run_dir / "checkpoints" / f"{step:06d}" / "pretrained_model").mkdir(parents=True)
+        last = run_dir / "checkpoints" / "last"
+        last.unlink(missing_ok=True)
+        last.symlink_to(f"{steps:06d}")
+
+    return run
+
+
+@pytest.mark.parametrize(
+    "max_steps, successes, resumed_to, selected",
+    [
+        (1500, {500: 11, 700: 19, 900: 20}, [1000], "000900"),  # learned within the first extension
+        (1500, {500: 11, 700: 12}, [1000, 1500], "000700"),  # never learned: trains up to the cap
+        (0, {500: 11, 700: 19}, [], "000500"),  # no extension configured
+        (1500, {300: 18}, [], "000300"),  # learned in the stage's own steps
+    ],
+)
+def test_a_stage_trains_on_until_its_skill_is_learned(
+    tmp_path, monkeypatch, max_steps, successes, resumed_to, selected
+):
+    from lerobot_kvm.benchmark import continual
+    from lerobot_kvm.evaluation import checkpoint_selection
+
+    commands: list = []
+    monkeypatch.setattr(continual, "run_logged", _fake_lerobot_train(commands))
+    monkeypatch.setattr(
+        checkpoint_selection,
+        "rollout_score",
+        lambda ck, *a, **k: {"success": successes.get(int(ck.parent.name), 0), "catastrophe": 0, "episodes": 20},
+    )
+    method = MethodSpec("coda_kvm", steps_per_stage=500, select_every=100, max_steps_per_stage=max_steps)
+    task = TaskSpec("drawer")
+    run = continual.ContinualRun(SequenceConfig("d", [task], [method]), tmp_path)
+    stage = tmp_path / "stage"
+    run._train_stage(method, stage, run._policy_args(method, None, task.name), [0, 1], task)
+    assert [c for c in commands[1:] if "--resume=true" in c] == commands[1:]
+    assert [int(c[-1].removeprefix("--steps=")) for c in commands[1:]] == resumed_to
+    choice = json.loads((stage / continual.SELECTION).read_text())
+    assert choice["selected"] == selected and len(choice["checkpoints"]) == max([500, *resumed_to]) // 100
+    assert continual.stage_checkpoint(stage, True).parent.name == selected
+
+    # Run again (a resumed sequence): nothing is trained or scored twice.
+    monkeypatch.setattr(checkpoint_selection, "rollout_score", None)
+    run._train_stage(method, stage, run._policy_args(method, None, task.name), [0, 1], task)
+    assert len(commands) == 1 + len(resumed_to)
 
 
 def _identical(a: torch.nn.Module, b: torch.nn.Module) -> bool:
