@@ -316,7 +316,7 @@ class ContinualRun:
         if not self.config.pretrain_tasks or method.checkpoints_from is not None:
             return None
         bar.set_description(f"{method.name}: pretraining")
-        stage = replace(method, steps_per_stage=method.pretrain_steps)
+        stage = replace(method, steps_per_stage=method.pretrain_steps, max_steps_per_stage=0)
         # Methods with the same policy and training settings share one pretraining run (e.g. ACT's two modes).
         key = json.dumps([method.policy, method.args, method.pretrain_steps, method.batch_size, self.launcher])
         stage_dir = self.out / "pretrain" / f"{method.policy}-{hashlib.sha1(key.encode()).hexdigest()[:8]}"

@@ -240,6 +240,19 @@ def test_methods_with_one_policy_and_training_settings_share_one_pretraining_run
     assert dirs[0] == dirs[1] != dirs[2]
 
 
+def test_a_pretraining_longer_than_a_stage_may_train_runs_its_own_steps(tmp_path, monkeypatch):
+    from tqdm import tqdm
+
+    from lerobot_kvm.benchmark.continual import ContinualRun
+
+    coda = MethodSpec("coda_kvm", steps_per_stage=500, select_every=100, max_steps_per_stage=1000, pretrain_steps=1500)
+    run = ContinualRun(SequenceConfig("s", [TaskSpec("book")], [coda], pretrain_tasks=[TaskSpec("potato")]), tmp_path)
+    trained = []
+    monkeypatch.setattr(ContinualRun, "_train", lambda self, method, *args: trained.append(method.steps_per_stage))
+    run._pretrain(coda, [[0]], tqdm(disable=True))
+    assert trained == [1500]
+
+
 def test_training_minutes_add_pretraining_and_stages_and_skip_evaluation_only_methods():
     from lerobot_kvm.benchmark.continual import training_minutes
 
