@@ -2,7 +2,8 @@
 episodes, and the (method, run) challenge units shared among the workers.
 
 The per-step and per-unit costs are measurements on 2 CPU cores (docs/benchmark.md, Cost); on other machines
-the estimate is only a scale. Work an earlier invocation finished is reused and makes the run shorter.
+the estimate is only a scale. Work an earlier invocation finished is reused and makes the run shorter; a stage that
+trains on because its skill is not learned yet (`MethodSpec.max_steps_per_stage`) makes it longer.
 """
 
 from collections.abc import Sequence

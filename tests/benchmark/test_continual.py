@@ -211,14 +211,21 @@ def test_tiny_sequence_runs_every_method_through_the_real_clis(tiny_pool):
     assert _identical(first.pool.tasks[1], second.pool.tasks[1])
     assert _identical(pretrained.backbone, second.backbone)
 
-    # Every trained stage scored each saved checkpoint by rollouts, and the next stage began from the one selected.
+    # Every trained stage scored each saved checkpoint by rollouts, and the next stage began from the one selected;
+    # a stage whose skill was not learned in its 2 steps trained on to 3 (`max_steps_per_stage`), resumed by
+    # `lerobot-train` itself.
     for k, stage in enumerate(stages):
         choice = json.loads((stage / SELECTION).read_text())
-        assert [c["step"] for c in choice["checkpoints"]] == ["000001", "000002"]
-        assert choice["selected"] in ("000001", "000002")
+        first = [c for c in choice["checkpoints"] if c["step"] in ("000001", "000002")]
+        steps = ["000001", "000002"] if any(c["success"] for c in first) else ["000001", "000002", "000003"]
+        assert [c["step"] for c in choice["checkpoints"]] == steps
+        assert (stage / "train_3.log").exists() == (len(steps) == 3)
+        assert choice["selected"] in steps
         assert all(c["episodes"] == 1 and c["success"] + c["catastrophe"] <= 1 for c in choice["checkpoints"])
         if k:
-            config = json.loads((stage / "train" / CHECKPOINT / "config.json").read_text())
+            config = json.loads(
+                (stage / "train" / "checkpoints" / "000001" / "pretrained_model" / "config.json").read_text()
+            )
             assert Path(config["pretrained_path"]) == stage_checkpoint(stages[k - 1], True)
 
     # A second invocation resumes: every stage and evaluation is found on disk and nothing is retrained.
