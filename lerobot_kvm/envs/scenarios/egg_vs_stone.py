@@ -16,6 +16,9 @@ STONE_RGB = np.array([0.72, 0.68, 0.62])
 EGG_RGB = np.array([0.78, 0.73, 0.64])
 BREAK_FORCE = 14.0  # N from one finger: an egg shell gives way above this
 LIFT_HEIGHT = 0.05
+# m, each of x and y: the suite's object spread. A squeeze aimed at the spread's centre holds the stone up to
+# about 13 mm off it along the fingers' faces and spits it out beyond (docs/measurements.md, "The egg's spread").
+POSITION_SPREAD = 0.012
 
 
 @register_scenario
@@ -39,7 +42,7 @@ class EggVsStone(GraspLiftScenario):
         rgb = (EGG_RGB if egg else STONE_RGB) + rng.uniform(-0.015, 0.015, 3)
         model.geom_rgba[self._gid] = [*rgb, 1.0]
         self._fragile = egg
-        xy = rng.uniform(-0.015, 0.015, 2)
+        xy = rng.uniform(-POSITION_SPREAD, POSITION_SPREAD, 2)
         set_free_body_pose(model, data, "object", [xy[0], xy[1], RADII[2]], yaw=rng.uniform(-np.pi, np.pi))
 
     def evaluate(self, physics: Physics) -> StepOutcome:
