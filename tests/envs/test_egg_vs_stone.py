@@ -3,8 +3,7 @@ import pytest
 
 from lerobot_kvm.envs import KvmObsolescenceEnvConfig, resolve_tasks
 from lerobot_kvm.envs.env import KvmObsolescenceEnv
-from lerobot_kvm.envs.experts import GraspLiftExpert
-from lerobot_kvm.envs.scenarios.egg_vs_stone import POSITION_SPREAD, RADII
+from lerobot_kvm.envs.scenarios.egg_vs_stone import POSITION_SPREAD, RADII, EggVsStone
 
 TASK = "egg_vs_stone"
 
@@ -34,7 +33,8 @@ def test_a_firm_grasp_aimed_at_the_centre_lifts_the_stone_anywhere_in_the_spread
     env.reset(seed=0)
     adr = env.model.jnt_qposadr[env.model.body("object").jntadr[0]]
     env.data.qpos[adr : adr + 2] = np.array(corner) * POSITION_SPREAD
-    expert = GraspLiftExpert("world", grip=0.75, grasp_height=RADII[2])  # aims at the origin, at the stone's height
+    # the scenario's own firm grasp, aimed at the origin (the world body) at the stone's height
+    expert = EggVsStone.skills["firm_grasp"](body="world", grasp_height=RADII[2])
     for _ in range(env._max_episode_steps):
         _, _, terminated, truncated, info = env.step(expert.act(env.physics))
         if terminated or truncated:
